@@ -1,0 +1,46 @@
+# slidewatch: `make run` starts the app on the embedded default; `make test` runs every test.
+SHELL := /bin/bash
+VENV ?= .venv
+PYTHON := $(VENV)/bin/python
+INSTALLED := $(VENV)/.installed
+PYTEST_ARGS ?=
+
+.PHONY: install run test lint format lock benchmark clean
+
+$(INSTALLED): requirements.lock pyproject.toml scripts/install-system-packages.sh
+	scripts/install-system-packages.sh
+	test -x $(PYTHON) || python3 -m venv $(VENV)
+	$(PYTHON) -m pip install --quiet --requirement requirements.lock
+	$(PYTHON) -m pip install --quiet --no-deps --editable .
+	touch $@
+
+install: $(INSTALLED)
+
+run: install
+	$(VENV)/bin/slidewatch run
+
+test: install
+	$(VENV)/bin/ruff check .
+	scripts/with-test-services.sh $(VENV)/bin/pytest $(PYTEST_ARGS)
+
+lint: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check backend worker tests benchmarks migrations
+
+format: install
+	$(VENV)/bin/ruff format backend worker tests benchmarks migrations
+	$(VENV)/bin/ruff check --fix .
+
+# Re-resolve every dependency from pyproject.toml and pin the result.
+lock:
+	rm -rf .lock-venv && python3 -m venv .lock-venv
+	.lock-venv/bin/pip install --quiet --editable '.[test]'
+	( echo "# Exact versions installed by make; regenerate with 'make lock'."; \
+	  .lock-venv/bin/pip freeze --exclude-editable | sed 's|^torch @ .*|torch==2.13.0|' ) > requirements.lock
+	rm -rf .lock-venv
+
+benchmark: install
+	$(PYTHON) benchmarks/comparison.py --size 2000 --json benchmarks/results/comparison.json
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

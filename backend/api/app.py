@@ -1,0 +1,37 @@
+"""The FastAPI application."""
+
+from fastapi import APIRouter, FastAPI
+from sqlalchemy.orm import sessionmaker
+
+from backend.api.routes import comparisons, health, jobs, products, sites, surveys
+from backend.config import Settings, get_settings
+from backend.db.session import make_engine
+from backend.storage import LocalStorage
+from worker.celery_app import create_celery
+
+API_PREFIX = "/api/v1"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    app = FastAPI(
+        title="slidewatch",
+        version="0.1.0",
+        summary="Landslide detection from multi-temporal drone surveys.",
+        description="Every endpoint but `/health` needs an API token: "
+        "`Authorization: Bearer <token>` (create one with `slidewatch create-token`).",
+    )
+    engine = make_engine(settings.resolved_database_url)
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.sessionmaker = sessionmaker(bind=engine, expire_on_commit=False)
+    app.state.storage = LocalStorage(settings.storage_dir)
+    app.state.celery = create_celery(settings)
+
+    app.include_router(health.router)
+    api = APIRouter(prefix=API_PREFIX)
+    for module in (sites, surveys, comparisons, jobs, products):
+        api.include_router(module.router)
+    app.include_router(api)
+    return app

@@ -1,0 +1,89 @@
+from fastapi import APIRouter, HTTPException, Response, status
+from fastapi.responses import JSONResponse
+from sqlalchemy import select
+
+from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep
+from backend.api.schemas import ComparisonCreate, ComparisonCreated, ComparisonOut, ProductOut
+from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
+from backend.db.models import Comparison, Job, Site
+from backend.services.comparisons import ComparisonRejected, create_comparison
+from backend.services.deletion import delete_comparison
+from backend.services.jobs import QueueUnavailable
+
+router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
+
+
+def comparison_of_site(session: SessionDep, site: Site, comparison_id: int) -> Comparison:
+    comparison = session.get(Comparison, comparison_id)
+    if comparison is None or comparison.site_id != site.id:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"comparison {comparison_id} not found in site {site.id}"
+        )
+    return comparison
+
+
+def _job_of(session: SessionDep, comparison: Comparison) -> Job | None:
+    return session.scalar(
+        select(Job).where(Job.comparison_id == comparison.id).order_by(Job.id.desc()).limit(1)
+    )
+
+
+@router.post("", response_model=ComparisonCreated, status_code=status.HTTP_202_ACCEPTED)
+def create(
+    body: ComparisonCreate, site: SiteDep, session: SessionDep, celery: CeleryDep
+) -> ComparisonCreated:
+    """Compare two surveys of this site: queues a job and returns at once."""
+    try:
+        comparison, job = create_comparison(
+            celery,
+            session, site, body.pre_survey_id, body.post_survey_id, body.method, body.parameters
+        )
+    except ComparisonRejected as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    except QueueUnavailable as exc:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
+    return ComparisonCreated(comparison=comparison_out(comparison, job), job=job_out(job))
+
+
+@router.get("", response_model=list[ComparisonOut])
+def list_comparisons(site: SiteDep, session: SessionDep) -> list[ComparisonOut]:
+    query = select(Comparison).where(Comparison.site_id == site.id).order_by(Comparison.id)
+    return [comparison_out(c, _job_of(session, c)) for c in session.scalars(query)]
+
+
+@router.get("/{comparison_id}", response_model=ComparisonOut)
+def get_comparison(comparison_id: int, site: SiteDep, session: SessionDep) -> ComparisonOut:
+    comparison = comparison_of_site(session, site, comparison_id)
+    return comparison_out(comparison, _job_of(session, comparison))
+
+
+@router.get(
+    "/{comparison_id}/detections",
+    summary="Detected changes as a GeoJSON FeatureCollection (RFC 7946, WGS84 lon/lat)",
+    response_class=JSONResponse,
+    responses={200: {"content": {"application/geo+json": {}}}},
+)
+def get_detections(comparison_id: int, site: SiteDep, session: SessionDep) -> JSONResponse:
+    comparison = comparison_of_site(session, site, comparison_id)
+    collection = {
+        "type": "FeatureCollection",
+        "features": [detection_feature(d) for d in comparison.detections],
+    }
+    return JSONResponse(collection, media_type="application/geo+json")
+
+
+@router.get("/{comparison_id}/products", response_model=list[ProductOut])
+def list_comparison_products(
+    comparison_id: int, site: SiteDep, session: SessionDep
+) -> list[ProductOut]:
+    comparison = comparison_of_site(session, site, comparison_id)
+    return [product_out(p) for p in comparison.products]
+
+
+@router.delete("/{comparison_id}", status_code=status.HTTP_204_NO_CONTENT)
+def remove_comparison(
+    comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> Response:
+    comparison = comparison_of_site(session, site, comparison_id)
+    delete_comparison(session, storage, comparison)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,46 @@
+from fastapi import APIRouter, HTTPException, status
+from sqlalchemy import select
+
+from backend.api.deps import CeleryDep, SessionDep, SiteDep
+from backend.api.schemas import JobOut
+from backend.api.serializers import job_out
+from backend.db.models import Comparison, Job, JobState, Site
+from backend.services.jobs import QueueUnavailable, reset_failed, start_job
+
+router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
+
+
+def job_of_site(session: SessionDep, site: Site, job_id: int) -> Job:
+    job = session.get(Job, job_id)
+    if job is None or job.site_id != site.id:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} not found in site {site.id}")
+    return job
+
+
+@router.get("", response_model=list[JobOut])
+def list_jobs(site: SiteDep, session: SessionDep) -> list[JobOut]:
+    jobs = session.scalars(select(Job).where(Job.site_id == site.id).order_by(Job.id.desc()))
+    return [job_out(job) for job in jobs]
+
+
+@router.get("/{job_id}", response_model=JobOut, summary="Job state with per-stage progress")
+def get_job(job_id: int, site: SiteDep, session: SessionDep) -> JobOut:
+    return job_out(job_of_site(session, site, job_id))
+
+
+@router.post("/{job_id}/retry", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
+def retry_job(job_id: int, site: SiteDep, session: SessionDep, celery: CeleryDep) -> JobOut:
+    """Run a failed job again from its failed stage; finished stages are not redone."""
+    job = job_of_site(session, site, job_id)
+    if job.state != JobState.failed:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"job {job.id} is {job.state}, not failed")
+    reset_failed(job)
+    if job.comparison_id is not None:
+        comparison = session.get(Comparison, job.comparison_id)
+        comparison.status, comparison.error, comparison.finished_at = JobState.queued, None, None
+    session.commit()
+    try:
+        start_job(celery, session, job)
+    except QueueUnavailable as exc:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
+    return job_out(job)

@@ -1,0 +1,45 @@
+from fastapi import APIRouter, HTTPException, status
+from fastapi.responses import FileResponse
+
+from backend.api.deps import SessionDep, SiteDep, StorageDep
+from backend.api.schemas import ProductOut
+from backend.api.serializers import product_out
+from backend.db.models import Product, Site
+
+router = APIRouter(prefix="/sites/{site_id}/products", tags=["products"])
+
+
+def product_of_site(session: SessionDep, site: Site, product_id: int) -> Product:
+    product = session.get(Product, product_id)
+    if product is None or product.site_id != site.id:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"product {product_id} not found in site {site.id}"
+        )
+    return product
+
+
+@router.get("/{product_id}", response_model=ProductOut)
+def get_product(product_id: int, site: SiteDep, session: SessionDep) -> ProductOut:
+    return product_out(product_of_site(session, site, product_id))
+
+
+@router.get(
+    "/{product_id}/file",
+    summary="Download a product (supports HTTP Range requests, e.g. for GDAL /vsicurl/)",
+    response_class=FileResponse,
+)
+def download_product(
+    product_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> FileResponse:
+    product = product_of_site(session, site, product_id)
+    path = storage.absolute(product.file.path)
+    if not path.is_file():
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"the file of product {product_id} is missing"
+        )
+    suffix = path.suffix
+    return FileResponse(
+        path,
+        media_type=product.file.media_type,
+        filename=f"{product.kind}-{product.survey_id or product.comparison_id}{suffix}",
+    )

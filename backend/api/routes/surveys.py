@@ -1,0 +1,114 @@
+from datetime import UTC, datetime
+from typing import Annotated
+
+from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
+from sqlalchemy import select
+
+from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep
+from backend.api.schemas import ProductOut, SurveyOut
+from backend.api.serializers import product_out
+from backend.db.models import Site, Survey
+from backend.services.deletion import StillInUse, delete_survey
+from backend.services.surveys import create_dsm_survey
+from backend.storage import UploadTooLarge
+from worker.pipeline.errors import InputError
+
+router = APIRouter(prefix="/sites/{site_id}/surveys", tags=["surveys"])
+
+
+def survey_of_site(session: SessionDep, site: Site, survey_id: int) -> Survey:
+    survey = session.get(Survey, survey_id)
+    if survey is None or survey.site_id != site.id:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"survey {survey_id} not found in site {site.id}"
+        )
+    return survey
+
+
+@router.get("", response_model=list[SurveyOut])
+def list_surveys(site: SiteDep, session: SessionDep) -> list[Survey]:
+    query = select(Survey).where(Survey.site_id == site.id).order_by(Survey.captured_at, Survey.id)
+    return list(session.scalars(query))
+
+
+@router.post(
+    "",
+    response_model=SurveyOut,
+    status_code=status.HTTP_201_CREATED,
+    summary="Upload a DSM GeoTIFF as a new survey",
+    description="Send the GeoTIFF as the raw request body, e.g. "
+    "`curl -H 'Authorization: Bearer TOKEN' -H 'Content-Type: image/tiff' "
+    "--data-binary @dsm.tif 'URL?name=June&captured_at=2026-06-01T10:00:00Z'`. "
+    "The body is streamed to disk; uploads above the configured limit are refused with 413.",
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {"image/tiff": {"schema": {"type": "string", "format": "binary"}}},
+        }
+    },
+)
+async def upload_dsm_survey(
+    request: Request,
+    site: SiteDep,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    captured_at: Annotated[datetime, Query(description="When the survey was flown (ISO 8601).")],
+    name: Annotated[str | None, Query(max_length=200)] = None,
+    filename: Annotated[
+        str | None, Query(max_length=512, description="Original file name.")
+    ] = None,
+    content_length: Annotated[int | None, Header()] = None,
+) -> Survey:
+    content_type = request.headers.get("content-type", "")
+    if content_type.startswith("multipart/"):
+        raise HTTPException(
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            "send the GeoTIFF as the raw request body (Content-Type: image/tiff), not as a form",
+        )
+    if content_length is not None and content_length > settings.max_upload_bytes:
+        raise HTTPException(
+            status.HTTP_413_CONTENT_TOO_LARGE,
+            f"upload of {content_length} bytes is larger than the limit of "
+            f"{settings.max_upload_bytes} bytes",
+        )
+    if captured_at.tzinfo is None:
+        captured_at = captured_at.replace(tzinfo=UTC)
+    try:
+        return await create_dsm_survey(
+            session,
+            storage,
+            site,
+            request.stream(),
+            name=name or filename or f"survey {captured_at:%Y-%m-%d %H:%M}",
+            captured_at=captured_at,
+            original_name=filename,
+            max_bytes=settings.max_upload_bytes,
+        )
+    except UploadTooLarge as exc:
+        raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, str(exc)) from None
+    except InputError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+
+
+@router.get("/{survey_id}", response_model=SurveyOut)
+def get_survey(survey_id: int, site: SiteDep, session: SessionDep) -> Survey:
+    return survey_of_site(session, site, survey_id)
+
+
+@router.get("/{survey_id}/products", response_model=list[ProductOut])
+def list_survey_products(survey_id: int, site: SiteDep, session: SessionDep) -> list[ProductOut]:
+    survey = survey_of_site(session, site, survey_id)
+    return [product_out(p) for p in survey.products]
+
+
+@router.delete("/{survey_id}", status_code=status.HTTP_204_NO_CONTENT)
+def remove_survey(
+    survey_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> Response:
+    survey = survey_of_site(session, site, survey_id)
+    try:
+        delete_survey(session, storage, survey)
+    except StillInUse as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

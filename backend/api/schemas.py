@@ -1,0 +1,126 @@
+"""Request and response bodies of the REST API."""
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
+
+
+class ORMModel(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+
+class SiteCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=200)
+    description: str = ""
+    area_of_interest: dict[str, Any] | None = Field(
+        default=None, description="GeoJSON Polygon or MultiPolygon in WGS84 lon/lat."
+    )
+
+
+class SiteUpdate(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+    description: str | None = None
+    area_of_interest: dict[str, Any] | None = None
+
+
+class SiteOut(ORMModel):
+    id: int
+    name: str
+    description: str
+    area_of_interest: dict[str, Any] | None
+    created_at: datetime
+
+
+class StoredFileOut(ORMModel):
+    size_bytes: int
+    sha256: str
+    media_type: str
+    original_name: str | None
+
+
+class ProductOut(ORMModel):
+    id: int
+    kind: str
+    survey_id: int | None
+    comparison_id: int | None
+    crs: str | None
+    file: StoredFileOut
+    download_url: str
+    created_at: datetime
+
+
+class SurveyOut(ORMModel):
+    id: int
+    site_id: int
+    name: str
+    captured_at: datetime
+    kind: SurveyKind
+    status: SurveyStatus
+    crs: str | None
+    footprint: dict[str, Any] | None
+    resolution_m: float | None
+    source_file: StoredFileOut | None
+    created_at: datetime
+
+
+class ComparisonCreate(BaseModel):
+    pre_survey_id: int
+    post_survey_id: int
+    method: str = Field(default="threshold", description="Detection method: threshold.")
+    parameters: dict[str, Any] = Field(
+        default_factory=dict, description="Options of the comparison stages (see docs)."
+    )
+
+
+class ComparisonOut(ORMModel):
+    id: int
+    site_id: int
+    pre_survey_id: int
+    post_survey_id: int
+    method: str
+    parameters: dict[str, Any]
+    status: JobState
+    summary: dict[str, Any] | None
+    error: str | None
+    created_at: datetime
+    finished_at: datetime | None
+    job_id: int | None = None
+
+
+class StageRunOut(ORMModel):
+    stage: str
+    state: StageState
+    progress: float
+    attempts: int
+    started_at: datetime | None
+    finished_at: datetime | None
+    error: str | None
+    result: dict[str, Any] | None
+
+
+class JobOut(ORMModel):
+    id: int
+    site_id: int
+    kind: str
+    comparison_id: int | None
+    survey_id: int | None
+    state: JobState
+    progress: float
+    error: str | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    stages: list[StageRunOut]
+
+
+class ComparisonCreated(BaseModel):
+    comparison: ComparisonOut
+    job: JobOut
+
+
+class TokenCreated(BaseModel):
+    name: str
+    token: str

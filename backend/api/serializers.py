@@ -1,0 +1,62 @@
+"""Turn database rows into response bodies where a plain from_attributes is not enough."""
+
+from typing import Any
+
+from backend.api.schemas import ComparisonOut, JobOut, ProductOut, StageRunOut, StoredFileOut
+from backend.db.models import Comparison, Detection, Job, Product
+from backend.services.jobs import job_progress
+
+API_PREFIX = "/api/v1"
+
+
+def product_out(product: Product) -> ProductOut:
+    return ProductOut(
+        id=product.id,
+        kind=product.kind,
+        survey_id=product.survey_id,
+        comparison_id=product.comparison_id,
+        crs=product.crs,
+        file=StoredFileOut.model_validate(product.file),
+        download_url=f"{API_PREFIX}/sites/{product.site_id}/products/{product.id}/file",
+        created_at=product.created_at,
+    )
+
+
+def job_out(job: Job) -> JobOut:
+    return JobOut(
+        id=job.id,
+        site_id=job.site_id,
+        kind=job.kind,
+        comparison_id=job.comparison_id,
+        survey_id=job.survey_id,
+        state=job.state,
+        progress=job_progress(job),
+        error=job.error,
+        created_at=job.created_at,
+        started_at=job.started_at,
+        finished_at=job.finished_at,
+        stages=[StageRunOut.model_validate(run) for run in job.stages],
+    )
+
+
+def comparison_out(comparison: Comparison, job: Job | None) -> ComparisonOut:
+    out = ComparisonOut.model_validate(comparison)
+    out.job_id = job.id if job else None
+    return out
+
+
+def detection_feature(detection: Detection) -> dict[str, Any]:
+    return {
+        "type": "Feature",
+        "id": detection.id,
+        "geometry": detection.geometry,
+        "properties": {
+            "comparison_id": detection.comparison_id,
+            "area_m2": detection.area_m2,
+            "volume_loss_m3": detection.volume_loss_m3,
+            "volume_gain_m3": detection.volume_gain_m3,
+            "max_abs_dh_m": detection.max_abs_dh_m,
+            "score": detection.score,
+            "method": detection.method,
+        },
+    }

@@ -1,0 +1,81 @@
+"""All configuration, read from SLIDEWATCH_* environment variables (see README)."""
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="SLIDEWATCH_", env_file=None)
+
+    data_dir: Path = Field(
+        default=Path("data"),
+        description="Root of everything slidewatch keeps on disk: the SQLite database and "
+        "broker of the embedded default, uploaded files and products.",
+    )
+    database_url: str | None = Field(
+        default=None,
+        description="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db. "
+        "Default: a SQLite file in the data directory.",
+    )
+    broker_url: str | None = Field(
+        default=None,
+        description="Celery broker URL, e.g. redis://host:6379/0. Default: a SQLite "
+        "broker file in the data directory (no server needed).",
+    )
+    broker_visibility_timeout_s: int = Field(
+        default=3600,
+        description="Redis broker: seconds after which a task taken by a worker that died "
+        "without acknowledging it is delivered again. Must exceed the longest stage.",
+    )
+    max_upload_bytes: int = Field(
+        default=20 * 1024**3, description="Largest accepted upload, in bytes."
+    )
+    heartbeat_interval_s: float = Field(
+        default=10.0, description="How often a running stage records that its worker lives."
+    )
+    stale_stage_after_s: float = Field(
+        default=60.0,
+        description="A stage whose heartbeat is older than this is taken to be lost (its "
+        "worker died): it may be claimed again and the recovery sweep queues it again.",
+    )
+    recovery_interval_s: float = Field(
+        default=30.0, description="How often beat runs the sweep that requeues lost stages."
+    )
+    task_max_retries: int = Field(
+        default=5, description="Retries of a stage after a transient error (with backoff)."
+    )
+    api_host: str = "127.0.0.1"
+    api_port: int = 8000
+    worker_concurrency: int = Field(default=1, description="Worker processes per worker.")
+
+    @property
+    def storage_dir(self) -> Path:
+        return self.data_dir / "files"
+
+    @property
+    def work_dir(self) -> Path:
+        return self.data_dir / "work"
+
+    @property
+    def resolved_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'slidewatch.db').resolve()}"
+
+    @property
+    def resolved_broker_url(self) -> str:
+        if self.broker_url:
+            return self.broker_url
+        return f"sqla+sqlite:///{(self.data_dir / 'broker.db').resolve()}"
+
+    @property
+    def broker_is_embedded(self) -> bool:
+        return self.resolved_broker_url.startswith(("sqla+", "filesystem:"))
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

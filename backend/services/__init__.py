@@ -1,0 +1,1 @@
+"""Use cases behind the API routes: each keeps the database and the files consistent."""

@@ -1,0 +1,78 @@
+"""Create a comparison of two surveys of one site and queue its job."""
+
+from celery import Celery
+from shapely.geometry import shape
+from sqlalchemy.orm import Session
+from worker.pipeline.comparison import ComparisonOptions
+from worker.pipeline.errors import InputError
+
+from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
+from backend.services.jobs import QueueUnavailable, new_job, start_job
+from worker.jobs.comparison import ComparisonJob
+
+METHODS = ("threshold",)
+
+
+class ComparisonRejected(ValueError):
+    """The request cannot make a valid comparison; the message says why."""
+
+
+def _survey_of_site(session: Session, site: Site, survey_id: int, role: str) -> Survey:
+    survey = session.get(Survey, survey_id)
+    if survey is None:
+        raise ComparisonRejected(f"{role} survey {survey_id} does not exist")
+    if survey.site_id != site.id:
+        raise ComparisonRejected(
+            f"{role} survey {survey_id} belongs to another site; "
+            "a comparison needs two surveys of the same site"
+        )
+    if survey.status != SurveyStatus.ready or not any(p.kind == "dsm" for p in survey.products):
+        raise ComparisonRejected(f"{role} survey {survey_id} has no DSM ready yet")
+    return survey
+
+
+def create_comparison(
+    celery: Celery,
+    session: Session,
+    site: Site,
+    pre_survey_id: int,
+    post_survey_id: int,
+    method: str,
+    parameters: dict,
+) -> tuple[Comparison, Job]:
+    if method not in METHODS:
+        raise ComparisonRejected(f"unknown method {method!r}; choose one of: {', '.join(METHODS)}")
+    if pre_survey_id == post_survey_id:
+        raise ComparisonRejected("pre and post survey are the same survey")
+    pre = _survey_of_site(session, site, pre_survey_id, "pre")
+    post = _survey_of_site(session, site, post_survey_id, "post")
+    if pre.footprint and post.footprint:
+        overlap = shape(pre.footprint).intersection(shape(post.footprint)).area
+        if overlap <= 0:
+            raise ComparisonRejected(f"the DSMs of surveys {pre.id} and {post.id} do not overlap")
+    try:
+        options = ComparisonOptions.from_dict(parameters)
+    except (InputError, TypeError, ValueError) as exc:
+        raise ComparisonRejected(f"invalid parameters: {exc}") from exc
+
+    comparison = Comparison(
+        site_id=site.id,
+        pre_survey_id=pre.id,
+        post_survey_id=post.id,
+        method=method,
+        parameters=options.to_dict(),
+        status=JobState.queued,
+    )
+    session.add(comparison)
+    session.flush()
+    job = new_job(site.id, ComparisonJob.name, ComparisonJob.stages, comparison_id=comparison.id)
+    session.add(job)
+    session.commit()
+    try:
+        start_job(celery, session, job)
+    except QueueUnavailable as exc:
+        comparison.status = JobState.failed
+        comparison.error = str(exc)
+        session.commit()
+        raise
+    return comparison, job

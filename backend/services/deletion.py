@@ -1,0 +1,64 @@
+"""Delete sites, surveys and comparisons with everything that hangs on them, files included.
+
+Rows go first, in one transaction (the database cascades to children); files are removed
+only after the commit, so a failed delete never leaves rows pointing at missing files.
+"""
+
+from sqlalchemy import delete, or_, select
+from sqlalchemy.orm import Session
+
+from backend.db.models import Comparison, Product, Site, StoredFile, Survey
+from backend.storage import LocalStorage
+from worker.jobs.comparison import comparison_folder
+
+
+class StillInUse(Exception):
+    pass
+
+
+def _files_of(session: Session, *conditions) -> list[StoredFile]:
+    product_files = select(Product.file_id).where(or_(*conditions))
+    return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(product_files))))
+
+
+def _remove(
+    session: Session, storage: LocalStorage, files: list[StoredFile], folders: list[str]
+) -> None:
+    paths = [f.path for f in files]
+    session.execute(delete(StoredFile).where(StoredFile.id.in_([f.id for f in files])))
+    session.commit()
+    for path in paths:
+        storage.delete(path)
+    for folder in folders:
+        storage.delete_tree(folder)
+
+
+def delete_comparison(session: Session, storage: LocalStorage, comparison: Comparison) -> None:
+    files = _files_of(session, Product.comparison_id == comparison.id)
+    session.execute(delete(Comparison).where(Comparison.id == comparison.id))
+    _remove(session, storage, files, [comparison_folder(comparison.id)])
+
+
+def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> None:
+    users = session.scalars(
+        select(Comparison.id).where(
+            or_(Comparison.pre_survey_id == survey.id, Comparison.post_survey_id == survey.id)
+        )
+    ).all()
+    if users:
+        raise StillInUse(
+            f"survey {survey.id} is used by comparisons {', '.join(map(str, users))}; "
+            "delete them first"
+        )
+    files = _files_of(session, Product.survey_id == survey.id)
+    session.execute(delete(Survey).where(Survey.id == survey.id))
+    _remove(session, storage, files, [])
+
+
+def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
+    comparison_ids = session.scalars(
+        select(Comparison.id).where(Comparison.site_id == site.id)
+    ).all()
+    files = _files_of(session, Product.site_id == site.id)
+    session.execute(delete(Site).where(Site.id == site.id))
+    _remove(session, storage, files, [comparison_folder(c) for c in comparison_ids])

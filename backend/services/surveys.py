@@ -1,0 +1,63 @@
+"""Create a survey from an uploaded DSM GeoTIFF."""
+
+from collections.abc import AsyncIterator
+from datetime import datetime
+
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+from worker.pipeline.dsm_inspect import inspect_dsm
+
+from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
+from backend.storage import LocalStorage, SavedFile
+
+
+async def create_dsm_survey(
+    session: Session,
+    storage: LocalStorage,
+    site: Site,
+    chunks: AsyncIterator[bytes],
+    *,
+    name: str,
+    captured_at: datetime,
+    original_name: str | None,
+    max_bytes: int,
+) -> Survey:
+    """Stream the upload to storage, check it is a usable DSM, then record it.
+
+    Raises UploadTooLarge or InputError; in every failure the file is removed and no
+    row is left behind.
+    """
+    saved: SavedFile = await storage.save_stream(chunks, f"surveys/{site.id}", ".tif", max_bytes)
+    try:
+        info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path))
+        stored = StoredFile(
+            path=saved.relative_path,
+            size_bytes=saved.size_bytes,
+            sha256=saved.sha256,
+            media_type="image/tiff",
+            original_name=original_name,
+        )
+        survey = Survey(
+            site=site,
+            name=name,
+            captured_at=captured_at,
+            kind=SurveyKind.dsm,
+            status=SurveyStatus.ready,
+            crs=info.crs,
+            footprint=info.footprint,
+            resolution_m=float(max(info.resolution_m)),
+            source_file=stored,
+        )
+        session.add_all([stored, survey])
+        session.flush()
+        session.add(
+            Product(
+                site_id=site.id, survey_id=survey.id, kind="dsm", file_id=stored.id, crs=info.crs
+            )
+        )
+        session.commit()
+    except BaseException:
+        session.rollback()
+        storage.delete(saved.relative_path)
+        raise
+    return survey

@@ -1,0 +1,87 @@
+"""Every endpoint but /health needs a valid API token."""
+
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+
+PROTECTED = [
+    ("GET", "/api/v1/sites"),
+    ("POST", "/api/v1/sites"),
+    ("GET", "/api/v1/sites/1"),
+    ("PATCH", "/api/v1/sites/1"),
+    ("DELETE", "/api/v1/sites/1"),
+    ("GET", "/api/v1/sites/1/surveys"),
+    ("POST", "/api/v1/sites/1/surveys"),
+    ("GET", "/api/v1/sites/1/surveys/1"),
+    ("GET", "/api/v1/sites/1/surveys/1/products"),
+    ("DELETE", "/api/v1/sites/1/surveys/1"),
+    ("GET", "/api/v1/sites/1/comparisons"),
+    ("POST", "/api/v1/sites/1/comparisons"),
+    ("GET", "/api/v1/sites/1/comparisons/1"),
+    ("GET", "/api/v1/sites/1/comparisons/1/detections"),
+    ("GET", "/api/v1/sites/1/comparisons/1/products"),
+    ("DELETE", "/api/v1/sites/1/comparisons/1"),
+    ("GET", "/api/v1/sites/1/jobs"),
+    ("GET", "/api/v1/sites/1/jobs/1"),
+    ("POST", "/api/v1/sites/1/jobs/1/retry"),
+    ("GET", "/api/v1/sites/1/products/1"),
+    ("GET", "/api/v1/sites/1/products/1/file"),
+]
+
+
+def test_health_needs_no_token(client: TestClient) -> None:
+    response = client.get("/health")
+    assert response.status_code == 200
+    assert response.json() == {"status": "ok"}
+
+
+def test_every_api_route_is_listed_here(app: FastAPI) -> None:
+    listed = {(method, path.replace("/1", "/{id}")) for method, path in PROTECTED}
+    routes = set()
+    for path, operations in app.openapi()["paths"].items():
+        if path.startswith("/api/v1"):
+            for name in ("site_id", "survey_id", "comparison_id", "job_id", "product_id"):
+                path = path.replace("{" + name + "}", "{id}")
+            routes |= {(method.upper(), path) for method in operations}
+    assert routes == listed
+
+
+@pytest.mark.parametrize(("method", "path"), PROTECTED)
+def test_no_token_is_refused(client: TestClient, method: str, path: str) -> None:
+    response = client.request(method, path)
+    assert response.status_code == 401
+    assert "missing API token" in response.json()["detail"]
+    assert response.headers["WWW-Authenticate"] == "Bearer"
+
+
+@pytest.mark.parametrize(("method", "path"), PROTECTED)
+def test_wrong_token_is_refused(client: TestClient, auth: dict, method: str, path: str) -> None:
+    response = client.request(method, path, headers={"Authorization": "Bearer sw_not-a-token"})
+    assert response.status_code == 401
+    assert "invalid" in response.json()["detail"]
+
+
+def test_token_is_stored_hashed(app: FastAPI, auth: dict) -> None:
+    from sqlalchemy import select
+
+    from backend.db.models import ApiToken
+
+    secret = auth["Authorization"].removeprefix("Bearer ")
+    with app.state.sessionmaker() as session:
+        stored = session.scalars(select(ApiToken)).one()
+    assert secret not in (stored.token_hash, stored.prefix)
+    assert len(stored.token_hash) == 64
+
+
+def test_revoked_token_is_refused(client: TestClient, app: FastAPI, auth: dict) -> None:
+    from datetime import UTC, datetime
+
+    from sqlalchemy import update
+
+    from backend.db.models import ApiToken
+
+    assert client.get("/api/v1/sites", headers=auth).status_code == 200
+    with app.state.sessionmaker() as session:
+        session.execute(update(ApiToken).values(revoked_at=datetime.now(UTC)))
+        session.commit()
+    assert client.get("/api/v1/sites", headers=auth).status_code == 401

@@ -1,0 +1,109 @@
+"""A comparison runs to the end in a real Celery worker process, and survives SIGKILL.
+
+On Redis + PostgreSQL (the scaled-out deployment) and on the embedded default (SQLite
+database, SQLite broker), the way `make run` starts it.
+"""
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from backend.config import Settings
+from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
+from worker.simulator.dsm_pair import DsmPair, DsmPairPaths, make_dsm_pair, write_dsm_pair
+
+pytestmark = pytest.mark.integration
+
+SHIFT_M = (1.6, -0.9, 0.3)
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory: pytest.TempPathFactory) -> tuple[DsmPair, DsmPairPaths]:
+    # Large enough that co-registration runs for a few seconds: time to kill the worker.
+    dsm_pair = make_dsm_pair(shape=(1200, 1200), pixel_size_m=0.5, shift_m=SHIFT_M, seed=11)
+    return dsm_pair, write_dsm_pair(dsm_pair, tmp_path_factory.mktemp("pair"))
+
+
+def submit_comparison(client, auth, paths: DsmPairPaths) -> tuple[int, int]:
+    site = client.post("/api/v1/sites", json={"name": "integration"}, headers=auth).json()["id"]
+    ids = []
+    for path, when in ((paths.pre, "2026-06-01T10:00:00Z"), (paths.post, "2026-07-01T10:00:00Z")):
+        response = client.post(
+            f"/api/v1/sites/{site}/surveys",
+            params={"captured_at": when},
+            content=path.read_bytes(),
+            headers={**auth, "Content-Type": "image/tiff"},
+        )
+        assert response.status_code == 201, response.text
+        ids.append(response.json()["id"])
+    created = client.post(
+        f"/api/v1/sites/{site}/comparisons",
+        json={"pre_survey_id": ids[0], "post_survey_id": ids[1]},
+        headers=auth,
+    )
+    assert created.status_code == 202, created.text
+    return site, created.json()["job"]["id"]
+
+
+def check_result(client, auth, site: int, job: dict, pair: DsmPair) -> list[dict]:
+    assert job["state"] == "succeeded", job
+    coregister = next(s for s in job["stages"] if s["stage"] == "coregister")["result"]
+    pixel = pair.pixel_size_m  # the correction applied to post undoes its displacement
+    assert abs(coregister["shift_east_m"] + SHIFT_M[0]) < 0.1 * pixel
+    assert abs(coregister["shift_north_m"] + SHIFT_M[1]) < 0.1 * pixel
+    features = client.get(
+        f"/api/v1/sites/{site}/comparisons/{job['comparison_id']}/detections", headers=auth
+    ).json()["features"]
+    assert len(features) == 1
+    area = features[0]["properties"]["area_m2"]
+    assert abs(area - pair.truth.area_m2) / pair.truth.area_m2 < 0.05
+    return features
+
+
+@pytest.mark.parametrize("deployment", ["redis+postgresql", "embedded"])
+def test_comparison_runs_to_the_end_in_a_worker(
+    deployment: str, request: pytest.FixtureRequest, tmp_path: Path,
+    start_worker: Callable[..., SlidewatchProcess], pair: tuple[DsmPair, DsmPairPaths],
+) -> None:  # fmt: skip
+    settings = (
+        request.getfixturevalue("redis_postgres_settings")
+        if deployment == "redis+postgresql"
+        else Settings(data_dir=tmp_path / "data")
+    )
+    client, auth = api_client(settings)
+    start_worker(settings)
+    site, job_id = submit_comparison(client, auth, pair[1])
+    job = wait_for_job(client, auth, site, job_id, lambda j: j["state"] in ("succeeded", "failed"))
+    check_result(client, auth, site, job, pair[0])
+    assert [s["attempts"] for s in job["stages"]] == [1, 1, 1, 1]
+
+
+@pytest.mark.parametrize("deployment", ["redis+postgresql", "embedded"])
+def test_worker_killed_mid_stage_loses_no_job(
+    deployment: str, request: pytest.FixtureRequest, tmp_path: Path,
+    start_worker: Callable[..., SlidewatchProcess], pair: tuple[DsmPair, DsmPairPaths],
+) -> None:  # fmt: skip
+    settings = (
+        request.getfixturevalue("redis_postgres_settings")
+        if deployment == "redis+postgresql"
+        else Settings(data_dir=tmp_path / "data")
+    )
+    client, auth = api_client(settings)
+    worker = start_worker(settings)
+    site, job_id = submit_comparison(client, auth, pair[1])
+
+    def coregistering_or_past_it(job: dict) -> bool:
+        return job["stages"][1]["state"] != "pending" or job["state"] == "failed"
+
+    job = wait_for_job(client, auth, site, job_id, coregistering_or_past_it)
+    assert job["stages"][1]["state"] == "running", "co-registration finished before the kill"
+    worker.kill()
+    job = client.get(f"/api/v1/sites/{site}/jobs/{job_id}", headers=auth).json()
+    assert job["stages"][1]["state"] == "running"  # nobody finished it
+
+    start_worker(settings)
+    job = wait_for_job(client, auth, site, job_id, lambda j: j["state"] in ("succeeded", "failed"))
+    check_result(client, auth, site, job, pair[0])
+    attempts = {s["stage"]: s["attempts"] for s in job["stages"]}
+    assert attempts == {"align": 1, "coregister": 2, "difference": 1, "vectorize": 1}

@@ -1,0 +1,104 @@
+"""coregister: sub-pixel shift recovery with and without a landslide, tilt, flat terrain."""
+
+import numpy as np
+import pytest
+import rasterio
+
+from worker.pipeline.coregister import CoregisterOptions, coregister
+from worker.pipeline.errors import InputError
+from worker.pipeline.geo import read_elevation, write_geotiff
+from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
+
+PIXEL_M = 1.0
+
+
+def _coregister(tmp_path, pair, options=None):
+    paths = write_dsm_pair(pair, tmp_path / "in")
+    result = coregister(
+        paths.pre,
+        paths.post,
+        tmp_path / "post_c.tif",
+        options,
+        stable_mask_out=tmp_path / "stable.tif",
+    )
+    return paths, result
+
+
+@pytest.mark.parametrize(
+    ("shift", "slide", "seed"),
+    [
+        ((0.3, -0.2, 0.5), False, 1),  # sub-pixel
+        ((0.5, 0.5, 0.0), True, 2),  # half a pixel, the worst case for interpolation
+        ((2.7, -1.6, 0.4), True, 3),  # multi-pixel
+        ((-4.2, 3.3, -1.0), True, 4),  # multi-pixel, other quadrant
+    ],
+)
+def test_shift_recovered_within_a_tenth_of_a_pixel(tmp_path, shift, slide, seed):
+    pair = make_dsm_pair((300, 300), PIXEL_M, shift, slide=slide, noise_m=0.05, seed=seed)
+    _, result = _coregister(tmp_path, pair)
+    # The result is the correction applied to post: the opposite of the simulated shift.
+    assert abs(result.shift_east_m + shift[0]) / PIXEL_M < 0.1
+    assert abs(result.shift_north_m + shift[1]) / PIXEL_M < 0.1
+    assert abs(result.shift_up_m + shift[2]) < 0.02
+    assert result.shift_east_px == pytest.approx(result.shift_east_m / PIXEL_M)
+    assert result.horizontal_estimated and result.notes == []
+    assert result.nmad_after_m < 0.1 <= result.nmad_before_m or shift[:2] == (0.3, -0.2)
+    assert result.nmad_after_m < result.nmad_before_m
+    assert abs(result.median_after_m) < 0.01
+
+
+def test_corrected_post_matches_pre_off_the_slide(tmp_path):
+    pair = make_dsm_pair((300, 300), PIXEL_M, (1.6, -0.7, 0.3), slide=True, noise_m=0.0, seed=5)
+    _coregister(tmp_path, pair)
+    corrected, _ = read_elevation(tmp_path / "post_c.tif")
+    dh = corrected - pair.pre
+    assert pair.truth is not None
+    stable = ~pair.truth.mask & np.isfinite(dh)
+    assert np.abs(np.median(dh[stable])) < 0.005
+    assert np.percentile(np.abs(dh[stable]), 95) < 0.05
+
+
+def test_stable_mask_excludes_the_landslide(tmp_path):
+    pair = make_dsm_pair((300, 300), PIXEL_M, (1.1, 0.4, 0.0), slide=True, seed=6)
+    _, result = _coregister(tmp_path, pair)
+    with rasterio.open(tmp_path / "stable.tif") as src:
+        mask = src.read(1)
+        assert src.nodata == 255 and src.dtypes[0] == "uint8"
+    assert pair.truth is not None
+    deep = pair.truth.mask & (np.abs(pair.post - pair.pre) > 0.5)
+    assert np.all(mask[deep] == 0)
+    assert 0.85 < result.stable_fraction < 0.99
+    assert result.iterations >= 2
+
+
+def test_tilt_is_estimated_and_removed(tmp_path):
+    pair = make_dsm_pair(
+        (300, 300), PIXEL_M, (2.2, 1.3, 0.2), slide=True, seed=7, tilt_m_per_km=(2.0, -1.5)
+    )
+    _, result = _coregister(tmp_path, pair)
+    assert result.tilt_east_m_per_km == pytest.approx(-2.0, abs=0.05)
+    assert result.tilt_north_m_per_km == pytest.approx(1.5, abs=0.05)
+    assert abs(result.shift_east_m + 2.2) < 0.1 and abs(result.shift_north_m + 1.3) < 0.1
+    assert abs(result.shift_up_m + 0.2) < 0.02
+    no_tilt = CoregisterOptions(tilt=False)
+    _, untilted = _coregister(tmp_path / "plain", pair, no_tilt)
+    assert untilted.tilt_east_m_per_km is None
+    assert untilted.nmad_after_m > result.nmad_after_m
+
+
+def test_flat_terrain_gets_only_a_vertical_shift(tmp_path):
+    pair = make_dsm_pair((300, 300), PIXEL_M, (0.8, 0.5, 0.35), slide=False, seed=8, terrain="flat")
+    _, result = _coregister(tmp_path, pair)
+    assert not result.horizontal_estimated
+    assert result.shift_east_m == 0.0 and result.shift_north_m == 0.0
+    assert result.shift_up_m == pytest.approx(-0.35, abs=0.01)
+    assert "flat terrain" in result.notes[0]
+
+
+def test_grids_must_match(tmp_path):
+    pair = make_dsm_pair((100, 100), slide=False)
+    write_geotiff(tmp_path / "pre.tif", pair.pre, pair.transform, "EPSG:32632")
+    write_geotiff(tmp_path / "post.tif", pair.post[:90], pair.transform, "EPSG:32632")
+    with pytest.raises(InputError, match="same grid"):
+        coregister(tmp_path / "pre.tif", tmp_path / "post.tif", tmp_path / "out.tif")
+    assert not (tmp_path / "out.tif").exists()

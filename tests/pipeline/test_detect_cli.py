@@ -1,0 +1,73 @@
+"""`detect` command through click's CliRunner."""
+
+import json
+
+from click.testing import CliRunner
+
+from worker.commands.detect import detect
+
+
+def test_detect_writes_geojson_and_prints_one_summary_line(slide_run, tmp_path):
+    out = tmp_path / "out" / "detections.geojson"
+    work = tmp_path / "work"
+    runner = CliRunner()
+    result = runner.invoke(
+        detect,
+        [
+            "--pre",
+            str(slide_run.paths.pre),
+            "--post",
+            str(slide_run.paths.post),
+            "--out",
+            str(out),
+            "--work-dir",
+            str(work),
+            "--min-area",
+            "30",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1
+    summary = json.loads(lines[0])
+    assert summary["detections"] == 1
+    assert set(summary) == {"detections", "total_area_m2", "shift_m"}
+    assert set(summary["shift_m"]) == {"east", "north", "up"}
+    assert json.loads(out.read_text())["type"] == "FeatureCollection"
+    assert (work / "dh.tif").exists()
+
+
+def test_fixed_lod_and_temporary_work_dir(slide_run, tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    out = tmp_path / "d.geojson"
+    result = CliRunner().invoke(
+        detect,
+        [
+            "--pre",
+            str(slide_run.paths.pre),
+            "--post",
+            str(slide_run.paths.post),
+            "--out",
+            str(out),
+            "--lod",
+            "5",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["detections"] == 0  # nothing moved by more than 5 m
+    assert list((tmp_path / "tmp").iterdir()) == []  # the temporary work dir is gone
+
+
+def test_bad_input_exits_2_with_a_plain_message(tmp_path):
+    bad = tmp_path / "pre.tif"
+    bad.write_text("not a raster")
+    out = tmp_path / "out.geojson"
+    result = CliRunner().invoke(detect, ["--pre", str(bad), "--post", str(bad), "--out", str(out)])
+    assert result.exit_code == 2
+    assert "pre.tif is not a raster file" in result.stderr
+    assert result.stdout == ""
+    assert not out.exists()

@@ -1,0 +1,80 @@
+"""difference: dh, LoD95 from stable-terrain NMAD, and the significance coding."""
+
+import numpy as np
+import pytest
+import rasterio
+from rasterio.transform import from_origin
+
+from worker.pipeline.difference import DifferenceOptions, difference
+from worker.pipeline.errors import InputError
+from worker.pipeline.geo import read_elevation, write_geotiff
+
+TRANSFORM = from_origin(500000, 5100000, 1.0, 1.0)
+
+
+def _inputs(tmp_path, sigma=0.1, seed=0):
+    rng = np.random.default_rng(seed)
+    pre = np.full((200, 200), 100.0, np.float32)
+    post = (pre + rng.normal(0.0, sigma, pre.shape)).astype(np.float32)
+    post[20:40, 20:40] -= 2.0  # loss
+    post[100:120, 150:170] += 1.5  # gain
+    pre[180:, 180:] = np.nan  # nodata
+    write_geotiff(tmp_path / "pre.tif", pre, TRANSFORM, "EPSG:32632")
+    write_geotiff(tmp_path / "post.tif", post, TRANSFORM, "EPSG:32632")
+    return tmp_path / "pre.tif", tmp_path / "post.tif"
+
+
+def _run(tmp_path, options=None, stable_mask_path=None):
+    pre, post = _inputs(tmp_path)
+    return difference(
+        pre,
+        post,
+        tmp_path / "dh.tif",
+        tmp_path / "sig.tif",
+        options,
+        stable_mask_path=stable_mask_path,
+    )
+
+
+def test_lod95_is_1_96_times_nmad_and_significance_is_coded(tmp_path):
+    result = _run(tmp_path)
+    assert result.nmad_m == pytest.approx(0.1, rel=0.05)
+    assert result.lod95_m == pytest.approx(1.96 * result.nmad_m)
+    assert result.lod_m == result.lod95_m
+    assert abs(result.median_dh_m) < 0.01
+    with rasterio.open(tmp_path / "sig.tif") as src:
+        sig = src.read(1)
+        assert src.nodata == 255 and src.tags()["LOD_M"] == repr(result.lod_m)
+    assert np.all(sig[20:40, 20:40] == 1) and np.all(sig[100:120, 150:170] == 2)
+    assert np.all(sig[180:, 180:] == 255)
+    noise = sig[50:90, 50:140]
+    assert 0.02 < np.count_nonzero(noise) / noise.size < 0.08  # about 5 % beyond LoD95
+    assert result.significant_loss_pixels >= 400 and result.significant_gain_pixels >= 400
+    dh, _ = read_elevation(tmp_path / "dh.tif")
+    assert np.all(np.isnan(dh[180:, 180:]))
+    assert dh[30, 30] == pytest.approx(-2.0, abs=0.5)
+
+
+def test_floor_and_fixed_lod(tmp_path):
+    floored = _run(tmp_path, DifferenceOptions(min_lod_m=0.5))
+    assert floored.lod_m == 0.5 and floored.lod95_m < 0.5
+    fixed = _run(tmp_path, DifferenceOptions(lod_m=1.0))
+    assert fixed.lod_m == 1.0
+    assert fixed.significant_loss_pixels == 400 and fixed.significant_gain_pixels == 400
+
+
+def test_stable_mask_selects_the_noise_estimate(tmp_path):
+    mask = np.zeros((200, 200), np.uint8)
+    mask[:, :100] = 1
+    mask[15:45, 15:45] = 0  # the co-registration excluded the loss and its fringe
+    write_geotiff(tmp_path / "stable.tif", mask, TRANSFORM, "EPSG:32632")
+    result = _run(tmp_path, stable_mask_path=tmp_path / "stable.tif")
+    assert result.stable_pixels == 200 * 100 - 30 * 30
+    assert result.nmad_m == pytest.approx(0.1, rel=0.05)
+
+
+def test_grids_must_match(tmp_path):
+    pre, _ = _inputs(tmp_path)
+    write_geotiff(tmp_path / "small.tif", np.ones((50, 50), np.float32), TRANSFORM, "EPSG:32632")
+    with pytest.raises(InputError, match="same grid"):
+        difference(pre, tmp_path / "small.tif", tmp_path / "dh.tif", tmp_path / "sig.tif")

@@ -1,0 +1,169 @@
+"""The comparison job: align, co-register, difference and vectorize two survey DSMs."""
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import rasterio
+from shapely.geometry import shape
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from backend.config import get_settings
+from backend.db.models import Comparison, Detection, Job, JobState, Product, StoredFile
+from backend.storage import LocalStorage, file_digest
+from worker.pipeline import comparison as pipeline
+from worker.pipeline.progress import ProgressFn
+
+# Files of a stage that become downloadable products, by product kind.
+STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
+    "coregister": {"post_coregistered": ("post_coregistered.tif", "image/tiff")},
+    "difference": {
+        "dh": ("dh.tif", "image/tiff"),
+        "significance": ("significance.tif", "image/tiff"),
+    },
+    "vectorize": {"detections": ("detections.geojson", "application/geo+json")},
+}
+
+
+def comparison_folder(comparison_id: int) -> str:
+    """Storage folder (relative) that holds a comparison's work files and products."""
+    return f"comparisons/{comparison_id}"
+
+
+class ComparisonJob:
+    name = "comparison"
+    stages: tuple[str, ...] = tuple(pipeline.STAGES)
+
+    def __init__(self, storage: LocalStorage | None = None) -> None:
+        self._storage = storage
+
+    @property
+    def storage(self) -> LocalStorage:
+        return self._storage or LocalStorage(get_settings().storage_dir)
+
+    def _comparison(self, session: Session, job: Job) -> Comparison:
+        comparison = session.get(Comparison, job.comparison_id)
+        if comparison is None:
+            raise LookupError(f"comparison {job.comparison_id} of job {job.id} is gone")
+        return comparison
+
+    def load_inputs(self, session: Session, job: Job) -> dict[str, Any]:
+        comparison = self._comparison(session, job)
+        dsm_paths = []
+        for survey in (comparison.pre_survey, comparison.post_survey):
+            dsm = next((p for p in survey.products if p.kind == "dsm"), None)
+            if dsm is None:
+                raise LookupError(f"survey {survey.id} has no DSM product")
+            dsm_paths.append(str(self.storage.absolute(dsm.file.path)))
+        return {
+            "pre_path": dsm_paths[0],
+            "post_path": dsm_paths[1],
+            "work_dir": str(self.storage.absolute(comparison_folder(comparison.id))),
+            "method": comparison.method,
+            "options": comparison.parameters,
+        }
+
+    def run_stage(self, stage: str, inputs: dict[str, Any], progress: ProgressFn) -> dict[str, Any]:
+        return pipeline.run_stage(
+            stage,
+            Path(inputs["pre_path"]),
+            Path(inputs["post_path"]),
+            Path(inputs["work_dir"]),
+            pipeline.ComparisonOptions.from_dict(inputs["options"]),
+            progress,
+        )
+
+    def store_stage_result(
+        self, session: Session, job: Job, stage: str, result: dict[str, Any]
+    ) -> None:
+        comparison = self._comparison(session, job)
+        folder = comparison_folder(comparison.id)
+        for kind, (file_name, media_type) in STAGE_PRODUCTS.get(stage, {}).items():
+            self._register_product(session, comparison, kind, f"{folder}/{file_name}", media_type)
+        if stage == "vectorize":
+            self._store_detections(session, comparison, f"{folder}/detections.geojson")
+
+    def _register_product(
+        self, session: Session, comparison: Comparison, kind: str, relative: str, media_type: str
+    ) -> None:
+        path = self.storage.absolute(relative)
+        size, sha256 = file_digest(path)
+        stored = session.scalar(select(StoredFile).where(StoredFile.path == relative))
+        if stored is None:
+            stored = StoredFile(
+                path=relative, size_bytes=size, sha256=sha256, media_type=media_type
+            )
+            session.add(stored)
+            session.flush()
+        else:
+            stored.size_bytes, stored.sha256 = size, sha256
+        product = session.scalar(
+            select(Product).where(Product.comparison_id == comparison.id, Product.kind == kind)
+        )
+        if product is None:
+            session.add(
+                Product(
+                    site_id=comparison.site_id,
+                    comparison_id=comparison.id,
+                    kind=kind,
+                    file_id=stored.id,
+                    crs=None if media_type.endswith("json") else _raster_crs(path),
+                )
+            )
+
+    def _store_detections(self, session: Session, comparison: Comparison, relative: str) -> None:
+        collection = json.loads(self.storage.absolute(relative).read_text())
+        session.execute(delete(Detection).where(Detection.comparison_id == comparison.id))
+        for feature in collection["features"]:
+            props = feature["properties"]
+            min_lon, min_lat, max_lon, max_lat = geometry_bbox(feature["geometry"])
+            session.add(
+                Detection(
+                    comparison_id=comparison.id,
+                    geometry=feature["geometry"],
+                    min_lon=min_lon,
+                    min_lat=min_lat,
+                    max_lon=max_lon,
+                    max_lat=max_lat,
+                    area_m2=props["area_m2"],
+                    volume_loss_m3=props["volume_loss_m3"],
+                    volume_gain_m3=props["volume_gain_m3"],
+                    max_abs_dh_m=props["max_abs_dh_m"],
+                    score=props["score"],
+                    method=props.get("method", comparison.method),
+                )
+            )
+
+    def on_success(self, session: Session, job: Job) -> None:
+        comparison = self._comparison(session, job)
+        results = {run.stage: run.result or {} for run in job.stages}
+        detections = comparison.detections
+        comparison.status = JobState.succeeded
+        comparison.error = None
+        comparison.finished_at = datetime.now(UTC)
+        comparison.summary = {
+            "detections": len(detections),
+            "total_area_m2": round(sum(d.area_m2 for d in detections), 3),
+            "total_volume_loss_m3": round(sum(d.volume_loss_m3 for d in detections), 3),
+            "total_volume_gain_m3": round(sum(d.volume_gain_m3 for d in detections), 3),
+            "stages": results,
+        }
+
+    def on_failure(self, session: Session, job: Job, reason: str) -> None:
+        comparison = session.get(Comparison, job.comparison_id)
+        if comparison is not None:
+            comparison.status = JobState.failed
+            comparison.error = reason
+            comparison.finished_at = datetime.now(UTC)
+
+
+def geometry_bbox(geometry: dict[str, Any]) -> tuple[float, float, float, float]:
+    min_x, min_y, max_x, max_y = shape(geometry).bounds
+    return min_x, min_y, max_x, max_y
+
+
+def _raster_crs(path: Path) -> str | None:
+    with rasterio.open(path) as src:
+        return src.crs.to_string() if src.crs else None

@@ -1,0 +1,181 @@
+"""Run one stage of a job, exactly the way every worker does it.
+
+A stage is *claimed* with one conditional UPDATE (pending, or running with a stale
+heartbeat), so that two workers never run it at once, and a stage whose worker died can
+be taken over. While it runs, a thread keeps its heartbeat fresh. Finished stages are
+never run again; a redelivered message for one only makes sure the next stage is queued.
+"""
+
+import logging
+import threading
+import time
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from sqlalchemy import or_, select, update
+from sqlalchemy.orm import Session
+
+from backend.config import get_settings
+from backend.db.models import Job, JobState, StageRun, StageState
+from backend.db.session import session_scope
+from worker.jobs.registry import job_kind
+
+log = logging.getLogger(__name__)
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+def _stage_run(session: Session, job_id: int, stage: str) -> StageRun | None:
+    return session.scalar(
+        select(StageRun).where(StageRun.job_id == job_id, StageRun.stage == stage)
+    )
+
+
+def _following(job: Job, run: StageRun) -> StageRun | None:
+    later = [r for r in job.stages if r.position > run.position]
+    return min(later, key=lambda r: r.position) if later else None
+
+
+def _claim(session: Session, run_id: int, now: datetime) -> bool:
+    stale = now - timedelta(seconds=get_settings().stale_stage_after_s)
+    claimed = session.execute(
+        update(StageRun)
+        .where(
+            StageRun.id == run_id,
+            or_(
+                StageRun.state == StageState.pending,
+                (StageRun.state == StageState.running) & (StageRun.heartbeat_at < stale),
+            ),
+        )
+        .values(
+            state=StageState.running,
+            attempts=StageRun.attempts + 1,
+            started_at=now,
+            heartbeat_at=now,
+            progress=0.0,
+            error=None,
+        )
+        .execution_options(synchronize_session=False)
+    )
+    return claimed.rowcount == 1
+
+
+class _Heartbeat:
+    """Keeps a running stage's heartbeat fresh and writes its progress, from a thread."""
+
+    def __init__(self, run_id: int, interval_s: float) -> None:
+        self.run_id = run_id
+        self.interval_s = interval_s
+        self.progress = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+
+    def __enter__(self) -> "_Heartbeat":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def report(self, fraction: float) -> None:
+        self.progress = min(max(float(fraction), 0.0), 1.0)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            try:
+                with session_scope() as session:
+                    session.execute(
+                        update(StageRun)
+                        .where(StageRun.id == self.run_id, StageRun.state == StageState.running)
+                        .values(heartbeat_at=utcnow(), progress=self.progress)
+                    )
+            except Exception:  # a missed beat is harmless; the next one retries
+                log.warning("heartbeat of stage run %s failed", self.run_id, exc_info=True)
+
+
+def execute_stage(job_id: int, stage: str) -> str | None:
+    """Run `stage` of job `job_id` if it is not done; return the stage to queue next.
+
+    Raises what the stage raised for transient failures (the caller retries); input
+    errors fail the job at once with the error's message as the reason.
+    """
+    from worker.pipeline.errors import InputError
+
+    settings = get_settings()
+    with session_scope() as session:
+        run = _stage_run(session, job_id, stage)
+        if run is None:
+            return None
+        job = run.job
+        if job.state in (JobState.succeeded, JobState.failed):
+            return None
+        if run.state == StageState.succeeded:
+            following = _following(job, run)
+            if following and following.state == StageState.pending and following.queued_at is None:
+                return following.stage
+            return None
+        now = utcnow()
+        if not _claim(session, run.id, now):
+            return None  # a live worker has it
+        if job.state == JobState.queued:
+            job.state = JobState.running
+            job.started_at = now
+        kind = job_kind(job.kind)
+        inputs: dict[str, Any] = kind.load_inputs(session, job)
+        run_id = run.id
+
+    started = time.perf_counter()
+    try:
+        with _Heartbeat(run_id, settings.heartbeat_interval_s) as heartbeat:
+            result = kind.run_stage(stage, inputs, heartbeat.report)
+    except InputError as exc:
+        fail_job(job_id, stage, str(exc))
+        return None
+    result = {**result, "wall_seconds": round(time.perf_counter() - started, 3)}
+
+    with session_scope() as session:
+        run = session.get(StageRun, run_id)
+        job = run.job
+        kind.store_stage_result(session, job, stage, result)
+        run.state = StageState.succeeded
+        run.progress = 1.0
+        run.finished_at = utcnow()
+        run.result = result
+        run.error = None
+        following = _following(job, run)
+        if following is None:
+            job.state = JobState.succeeded
+            job.finished_at = utcnow()
+            job.error = None
+            session.flush()
+            kind.on_success(session, job)
+            return None
+        return following.stage
+
+
+def record_retry(job_id: int, stage: str, error: str, delay_s: float) -> None:
+    """A transient failure: the stage goes back to pending until its retry is delivered."""
+    with session_scope() as session:
+        run = _stage_run(session, job_id, stage)
+        if run is not None and run.state != StageState.succeeded:
+            run.state = StageState.pending
+            run.error = f"attempt {run.attempts} failed, retrying in {delay_s:.0f} s: {error}"
+            run.queued_at = utcnow() + timedelta(seconds=delay_s)
+
+
+def fail_job(job_id: int, stage: str, reason: str) -> None:
+    with session_scope() as session:
+        run = _stage_run(session, job_id, stage)
+        if run is None:
+            return
+        job = run.job
+        run.state = StageState.failed
+        run.error = reason
+        run.finished_at = utcnow()
+        job.state = JobState.failed
+        job.error = f"{stage}: {reason}"
+        job.finished_at = utcnow()
+        job_kind(job.kind).on_failure(session, job, job.error)

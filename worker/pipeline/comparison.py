@@ -1,0 +1,185 @@
+"""The whole DSM comparison: align -> coregister -> difference -> vectorize.
+
+Each stage reads only the caller's two DSMs or files that earlier stages wrote into
+`work_dir`, and overwrites its own outputs atomically, so a stage can be re-run on its
+own (one Celery task per stage). Layout of `work_dir`:
+
+    pre_aligned.tif        align        pre DSM on the common metric grid (float32, -9999)
+    post_aligned.tif       align        post DSM on the same grid
+    post_coregistered.tif  coregister   post DSM corrected onto pre
+    stable_mask.tif        coregister   uint8: 1 stable terrain, 0 excluded, 255 nodata
+    dh.tif                 difference   post - pre in metres (float32, -9999)
+    significance.tif       difference   uint8: 0 none, 1 loss, 2 gain, 255 nodata
+    detections.geojson     vectorize    FeatureCollection, WGS84 lon/lat
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from worker.pipeline.align import AlignOptions, align
+from worker.pipeline.coregister import CoregisterOptions, coregister
+from worker.pipeline.difference import DifferenceOptions, difference
+from worker.pipeline.errors import InputError, PipelineError
+from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.vectorize import METHODS, VectorizeOptions, vectorize
+
+STAGES = ("align", "coregister", "difference", "vectorize")
+__all__ = ["METHODS", "STAGES", "ComparisonOptions", "ComparisonResult", "compare_dsms",
+           "run_stage", "summarize"]
+
+PRE_ALIGNED = "pre_aligned.tif"
+POST_ALIGNED = "post_aligned.tif"
+POST_COREGISTERED = "post_coregistered.tif"
+STABLE_MASK = "stable_mask.tif"
+DH = "dh.tif"
+SIGNIFICANCE = "significance.tif"
+DETECTIONS = "detections.geojson"
+
+_INPUTS = {
+    "align": (),
+    "coregister": (PRE_ALIGNED, POST_ALIGNED),
+    "difference": (PRE_ALIGNED, POST_COREGISTERED, STABLE_MASK),
+    "vectorize": (DH, SIGNIFICANCE),
+}
+# Share of the whole comparison's progress bar taken by each stage (from measured times).
+_WEIGHTS = {"align": 0.1, "coregister": 0.75, "difference": 0.08, "vectorize": 0.07}
+
+
+@dataclass
+class ComparisonOptions:
+    align: AlignOptions = field(default_factory=AlignOptions)
+    coregister: CoregisterOptions = field(default_factory=CoregisterOptions)
+    difference: DifferenceOptions = field(default_factory=DifferenceOptions)
+    vectorize: VectorizeOptions = field(default_factory=VectorizeOptions)
+    method: str = "threshold"
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None) -> ComparisonOptions:
+        """Build from `to_dict()` output; missing keys take defaults, unknown keys fail."""
+        data = dict(data or {})
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise InputError(f"unknown comparison options: {', '.join(sorted(unknown))}")
+        kwargs: dict[str, Any] = {}
+        for f in dataclasses.fields(cls):
+            if f.name not in data:
+                continue
+            if f.name == "method":
+                kwargs["method"] = str(data["method"])
+                continue
+            option_cls = type(getattr(cls(), f.name))
+            kwargs[f.name] = _options_from_dict(option_cls, f.name, data[f.name])
+        return cls(**kwargs)
+
+
+@dataclass
+class ComparisonResult:
+    results: dict[str, dict[str, Any]]  # stage name -> run_stage result
+    work_dir: Path
+    seconds: float
+
+    @property
+    def detections_path(self) -> Path:
+        return self.work_dir / DETECTIONS
+
+    def summary(self) -> dict[str, Any]:
+        return summarize(self.results)
+
+
+def compare_dsms(
+    pre_path: Path,
+    post_path: Path,
+    work_dir: Path,
+    options: ComparisonOptions | None = None,
+    progress: ProgressFn = no_progress,
+) -> ComparisonResult:
+    """Run every stage in order; outputs go to the fixed layout in `work_dir`."""
+    options = options or ComparisonOptions()
+    start = time.perf_counter()
+    results: dict[str, dict[str, Any]] = {}
+    done = 0.0
+    for stage in STAGES:
+        weight = _WEIGHTS[stage]
+
+        def stage_progress(fraction: float, done: float = done, weight: float = weight) -> None:
+            progress(min(1.0, done + weight * fraction))
+
+        results[stage] = run_stage(stage, pre_path, post_path, work_dir, options, stage_progress)
+        done += weight
+    progress(1.0)
+    return ComparisonResult(results=results, work_dir=Path(work_dir),
+                            seconds=time.perf_counter() - start)
+
+
+def run_stage(
+    stage: str,
+    pre_path: Path,
+    post_path: Path,
+    work_dir: Path,
+    options: ComparisonOptions | Mapping[str, Any] | None = None,
+    progress: ProgressFn = no_progress,
+) -> dict[str, Any]:
+    """Run one stage on the files of earlier stages in `work_dir`; return its result dict."""
+    if stage not in STAGES:
+        raise ValueError(f"unknown stage {stage!r}; stages are {', '.join(STAGES)}")
+    if not isinstance(options, ComparisonOptions):
+        options = ComparisonOptions.from_dict(options)
+    work = Path(work_dir)
+    work.mkdir(parents=True, exist_ok=True)
+    missing = [name for name in _INPUTS[stage] if not (work / name).exists()]
+    if missing:
+        raise PipelineError(
+            f"stage {stage!r} needs {', '.join(missing)} in {work}; run the earlier stages first"
+        )
+    result: Any
+    if stage == "align":
+        result = align(Path(pre_path), Path(post_path), work / PRE_ALIGNED, work / POST_ALIGNED,
+                       options.align, progress)
+    elif stage == "coregister":
+        result = coregister(work / PRE_ALIGNED, work / POST_ALIGNED, work / POST_COREGISTERED,
+                            options.coregister, progress, stable_mask_out=work / STABLE_MASK)
+    elif stage == "difference":
+        result = difference(work / PRE_ALIGNED, work / POST_COREGISTERED, work / DH,
+                            work / SIGNIFICANCE, options.difference,
+                            stable_mask_path=work / STABLE_MASK, progress=progress)
+    else:
+        result = vectorize(work / DH, work / SIGNIFICANCE, work / DETECTIONS,
+                           options.vectorize, options.method, progress)
+    return result.to_dict()
+
+
+def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """Short summary from stage results: detections, their total area, and the shift.
+
+    shift_m is the correction applied to the post DSM (see coregister.py).
+    """
+    found = results.get("vectorize", {})
+    shift = results.get("coregister", {})
+    return {
+        "detections": int(found.get("detections", 0)),
+        "total_area_m2": round(float(found.get("total_area_m2", 0.0)), 2),
+        "shift_m": {
+            "east": round(float(shift.get("shift_east_m", 0.0)), 4),
+            "north": round(float(shift.get("shift_north_m", 0.0)), 4),
+            "up": round(float(shift.get("shift_up_m", 0.0)), 4),
+        },
+    }
+
+
+def _options_from_dict(option_cls: type, name: str, values: Any) -> Any:
+    if not isinstance(values, Mapping):
+        raise InputError(f"comparison option {name!r} must be an object")
+    known = {f.name for f in dataclasses.fields(option_cls)}
+    unknown = set(values) - known
+    if unknown:
+        raise InputError(f"unknown {name} options: {', '.join(sorted(unknown))}")
+    return option_cls(**values)
