@@ -17,8 +17,14 @@ from worker.pipeline.comparison import STAGES, ComparisonOptions, run_stage
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 
 
-def run(size: int, pixel_size_m: float, shift: tuple[float, float, float], noise_m: float,
-        seed: int, work_dir: Path) -> dict:
+def run(
+    size: int,
+    pixel_size_m: float,
+    shift: tuple[float, float, float],
+    noise_m: float,
+    seed: int,
+    work_dir: Path,
+) -> dict:
     pair = make_dsm_pair((size, size), pixel_size_m, shift, True, noise_m, seed)
     paths = write_dsm_pair(pair, work_dir / "input")
     options = ComparisonOptions()
@@ -34,12 +40,17 @@ def run(size: int, pixel_size_m: float, shift: tuple[float, float, float], noise
     truth = pair.truth
     assert truth is not None
     detections = json.loads((work_dir / "work" / "detections.geojson").read_text())["features"]
-    found = {key: sum(f["properties"][key] for f in detections)
-             for key in ("area_m2", "volume_loss_m3", "volume_gain_m3")}
+    found = {
+        key: sum(f["properties"][key] for f in detections)
+        for key in ("area_m2", "volume_loss_m3", "volume_gain_m3")
+    }
     coreg = results["coregister"]
     # The coregistration reports the correction, the opposite of the simulated shift.
-    error_m = [coreg["shift_east_m"] + shift[0], coreg["shift_north_m"] + shift[1],
-               coreg["shift_up_m"] + shift[2]]
+    error_m = [
+        coreg["shift_east_m"] + shift[0],
+        coreg["shift_north_m"] + shift[1],
+        coreg["shift_up_m"] + shift[2],
+    ]
 
     def pct(value: float, reference: float) -> float:
         return round(100.0 * (value - reference) / reference, 3)
@@ -50,16 +61,24 @@ def run(size: int, pixel_size_m: float, shift: tuple[float, float, float], noise
         "shift_m": list(shift),
         "noise_m": noise_m,
         "seconds": {**stage_seconds, "total": round(total, 3)},
-        "shift_error_m": {"east": round(error_m[0], 4), "north": round(error_m[1], 4),
-                          "up": round(error_m[2], 4)},
-        "shift_error_px": {"east": round(error_m[0] / pixel_size_m, 4),
-                           "north": round(error_m[1] / pixel_size_m, 4)},
+        "shift_error_m": {
+            "east": round(error_m[0], 4),
+            "north": round(error_m[1], 4),
+            "up": round(error_m[2], 4),
+        },
+        "shift_error_px": {
+            "east": round(error_m[0] / pixel_size_m, 4),
+            "north": round(error_m[1] / pixel_size_m, 4),
+        },
         "detections": len(detections),
         "area_error_pct": pct(found["area_m2"], truth.area_m2),
         "volume_loss_error_pct": pct(found["volume_loss_m3"], truth.volume_loss_m3),
         "volume_gain_error_pct": pct(found["volume_gain_m3"], truth.volume_gain_m3),
-        "truth": {"area_m2": truth.area_m2, "volume_loss_m3": round(truth.volume_loss_m3, 1),
-                  "volume_gain_m3": round(truth.volume_gain_m3, 1)},
+        "truth": {
+            "area_m2": truth.area_m2,
+            "volume_loss_m3": round(truth.volume_loss_m3, 1),
+            "volume_gain_m3": round(truth.volume_gain_m3, 1),
+        },
         "nmad_after_m": round(coreg["nmad_after_m"], 4),
         "lod_m": round(results["difference"]["lod_m"], 4),
     }
@@ -69,8 +88,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=2000, help="rows and columns")
     parser.add_argument("--pixel-size", type=float, default=1.0, help="metres")
-    parser.add_argument("--shift", type=float, nargs=3, default=(2.7, -1.35, 0.6),
-                        metavar=("EAST", "NORTH", "UP"), help="simulated shift of post, m")
+    parser.add_argument(
+        "--shift",
+        type=float,
+        nargs=3,
+        default=(2.7, -1.35, 0.6),
+        metavar=("EAST", "NORTH", "UP"),
+        help="simulated shift of post, m",
+    )
     parser.add_argument("--noise", type=float, default=0.05, help="DSM noise, m")
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--json", type=Path, help="also write the figures here")

@@ -17,8 +17,6 @@ def dispatch_stage(celery: Celery, session: Session, job_id: int, stage: str) ->
     between can only cause a duplicate message, which the runner's claim makes harmless.
     """
     celery.send_task(RUN_STAGE_TASK, args=[job_id, stage], queue=QUEUE)
-    run = session.scalar(
-        select(StageRun).where(StageRun.job_id == job_id, StageRun.stage == stage)
-    )
+    run = session.scalar(select(StageRun).where(StageRun.job_id == job_id, StageRun.stage == stage))
     if run is not None:
         run.queued_at = datetime.now(UTC)

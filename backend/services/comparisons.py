@@ -3,12 +3,12 @@
 from celery import Celery
 from shapely.geometry import shape
 from sqlalchemy.orm import Session
-from worker.pipeline.comparison import ComparisonOptions
-from worker.pipeline.errors import InputError
 
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
 from backend.services.jobs import QueueUnavailable, new_job, start_job
 from worker.jobs.comparison import ComparisonJob
+from worker.pipeline.comparison import ComparisonOptions
+from worker.pipeline.errors import InputError
 
 METHODS = ("threshold",)
 

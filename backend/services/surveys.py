@@ -5,10 +5,10 @@ from datetime import datetime
 
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
-from worker.pipeline.dsm_inspect import inspect_dsm
 
 from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
 from backend.storage import LocalStorage, SavedFile
+from worker.pipeline.dsm_inspect import inspect_dsm
 
 
 async def create_dsm_survey(
@@ -29,7 +29,8 @@ async def create_dsm_survey(
     """
     saved: SavedFile = await storage.save_stream(chunks, f"surveys/{site.id}", ".tif", max_bytes)
     try:
-        info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path))
+        label = f"the upload {original_name!r}" if original_name else "the upload"
+        info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path), label)
         stored = StoredFile(
             path=saved.relative_path,
             size_bytes=saved.size_bytes,

@@ -7,7 +7,7 @@ from rasterio.transform import from_origin
 
 from worker.pipeline.align import AlignOptions, align
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import read_elevation, write_geotiff
+from worker.pipeline.raster_io import read_elevation, write_geotiff
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 
 

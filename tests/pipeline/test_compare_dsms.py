@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from worker.pipeline import geo
+from worker.pipeline import raster_io
 from worker.pipeline.comparison import (
     STAGES,
     ComparisonOptions,
@@ -120,7 +120,7 @@ def test_a_failing_stage_leaves_no_partial_output(slide_run, tmp_path, monkeypat
         dataset = real_open(path, mode, *args, **kwargs)
         return _FailingWriter(dataset) if mode == "w" else dataset
 
-    monkeypatch.setattr(geo.rasterio, "open", failing_open)
+    monkeypatch.setattr(raster_io.rasterio, "open", failing_open)
     with pytest.raises(OSError, match="No space left"):
         run_stage("difference", slide_run.paths.pre, slide_run.paths.post, work, None)
     assert not (work / "dh.tif").exists()
@@ -131,8 +131,8 @@ def test_a_failing_stage_leaves_no_partial_output(slide_run, tmp_path, monkeypat
 def test_failing_align_writes_nothing(tmp_path):
     a = make_dsm_pair((100, 100), slide=False, seed=1)
     b = make_dsm_pair((100, 100), slide=False, seed=1, origin=(700000.0, 5100000.0))
-    geo.write_geotiff(tmp_path / "a.tif", a.pre, a.transform, "EPSG:32632")
-    geo.write_geotiff(tmp_path / "b.tif", b.pre, b.transform, "EPSG:32632")
+    raster_io.write_geotiff(tmp_path / "a.tif", a.pre, a.transform, "EPSG:32632")
+    raster_io.write_geotiff(tmp_path / "b.tif", b.pre, b.transform, "EPSG:32632")
     with pytest.raises(InputError, match="do not overlap"):
         compare_dsms(tmp_path / "a.tif", tmp_path / "b.tif", tmp_path / "work")
     assert list((tmp_path / "work").iterdir()) == []

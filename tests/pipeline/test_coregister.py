@@ -6,7 +6,7 @@ import rasterio
 
 from worker.pipeline.coregister import CoregisterOptions, coregister
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import read_elevation, write_geotiff
+from worker.pipeline.raster_io import read_elevation, write_geotiff
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 
 PIXEL_M = 1.0

@@ -68,6 +68,6 @@ def test_bad_input_exits_2_with_a_plain_message(tmp_path):
     out = tmp_path / "out.geojson"
     result = CliRunner().invoke(detect, ["--pre", str(bad), "--post", str(bad), "--out", str(out)])
     assert result.exit_code == 2
-    assert "pre.tif is not a raster file" in result.stderr
+    assert "pre.tif is not a GeoTIFF, nor any raster file" in result.stderr
     assert result.stdout == ""
     assert not out.exists()

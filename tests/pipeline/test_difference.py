@@ -7,7 +7,7 @@ from rasterio.transform import from_origin
 
 from worker.pipeline.difference import DifferenceOptions, difference
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import read_elevation, write_geotiff
+from worker.pipeline.raster_io import read_elevation, write_geotiff
 
 TRANSFORM = from_origin(500000, 5100000, 1.0, 1.0)
 

@@ -78,7 +78,7 @@ def test_more_than_one_band_is_accepted_and_noted(tmp_path):
 def test_not_a_raster(tmp_path):
     path = tmp_path / "notes.tif"
     path.write_text("this is not an image")
-    with pytest.raises(InputError, match=r"notes\.tif is not a raster file"):
+    with pytest.raises(InputError, match=r"notes\.tif is not a GeoTIFF, nor any raster file"):
         inspect_dsm(path)
 
 

@@ -9,7 +9,7 @@ from rasterio.transform import from_origin
 from shapely.geometry import shape
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import read_elevation, write_geotiff
+from worker.pipeline.raster_io import read_elevation, write_geotiff
 from worker.pipeline.vectorize import VectorizeOptions, vectorize
 
 

@@ -17,21 +17,52 @@ EXIT_INPUT_ERROR = 2
 
 
 @click.command("detect")
-@click.option("--pre", "pre_path", required=True, type=click.Path(path_type=Path),
-              help="DSM of the earlier survey (GeoTIFF).")
-@click.option("--post", "post_path", required=True, type=click.Path(path_type=Path),
-              help="DSM of the later survey (GeoTIFF).")
-@click.option("--out", "out_path", required=True, type=click.Path(path_type=Path),
-              help="Where to write the detections (GeoJSON FeatureCollection).")
+@click.option(
+    "--pre",
+    "pre_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="DSM of the earlier survey (GeoTIFF).",
+)
+@click.option(
+    "--post",
+    "post_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="DSM of the later survey (GeoTIFF).",
+)
+@click.option(
+    "--out",
+    "out_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Where to write the detections (GeoJSON FeatureCollection).",
+)
 @click.option("--method", type=click.Choice(METHODS), default="threshold", show_default=True)
-@click.option("--work-dir", type=click.Path(path_type=Path), default=None,
-              help="Keep the intermediate rasters here (default: a temporary directory).")
-@click.option("--min-area", type=float, default=None,
-              help="Smallest detection kept, in square metres.")
-@click.option("--lod", type=float, default=None,
-              help="Fixed level of detection in metres (default: 1.96 x stable-terrain NMAD).")
-def detect(pre_path: Path, post_path: Path, out_path: Path, method: str,
-           work_dir: Path | None, min_area: float | None, lod: float | None) -> None:
+@click.option(
+    "--work-dir",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Keep the intermediate rasters here (default: a temporary directory).",
+)
+@click.option(
+    "--min-area", type=float, default=None, help="Smallest detection kept, in square metres."
+)
+@click.option(
+    "--lod",
+    type=float,
+    default=None,
+    help="Fixed level of detection in metres (default: 1.96 x stable-terrain NMAD).",
+)
+def detect(
+    pre_path: Path,
+    post_path: Path,
+    out_path: Path,
+    method: str,
+    work_dir: Path | None,
+    min_area: float | None,
+    lod: float | None,
+) -> None:
     """Detect landslides between two DSMs; print a one-line JSON summary."""
     options = ComparisonOptions(method=method)
     if min_area is not None:

@@ -27,15 +27,9 @@ from shapely.geometry import shape as to_shape
 
 from worker.pipeline.dsm_inspect import DsmInfo, inspect_dsm
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import (
-    crs_to_string,
-    is_metric_projected,
-    read_elevation,
-    utm_epsg_for_lonlat,
-    warp_elevation,
-    write_geotiff,
-)
+from worker.pipeline.geo import crs_to_string, is_metric_projected, utm_epsg_for_lonlat
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.raster_io import read_elevation, warp_elevation, write_geotiff
 
 
 @dataclass
@@ -122,8 +116,9 @@ def align(
     )
 
 
-def _target_crs(pre_crs: rasterio.crs.CRS, pre_info: DsmInfo, post_info: DsmInfo
-                ) -> rasterio.crs.CRS:
+def _target_crs(
+    pre_crs: rasterio.crs.CRS, pre_info: DsmInfo, post_info: DsmInfo
+) -> rasterio.crs.CRS:
     if is_metric_projected(pre_crs):
         return pre_crs
     lon, lat = _overlap_centroid_lonlat(pre_info, post_info)

@@ -30,8 +30,15 @@ from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.vectorize import METHODS, VectorizeOptions, vectorize
 
 STAGES = ("align", "coregister", "difference", "vectorize")
-__all__ = ["METHODS", "STAGES", "ComparisonOptions", "ComparisonResult", "compare_dsms",
-           "run_stage", "summarize"]
+__all__ = [
+    "METHODS",
+    "STAGES",
+    "ComparisonOptions",
+    "ComparisonResult",
+    "compare_dsms",
+    "run_stage",
+    "summarize",
+]
 
 PRE_ALIGNED = "pre_aligned.tif"
 POST_ALIGNED = "post_aligned.tif"
@@ -116,8 +123,9 @@ def compare_dsms(
         results[stage] = run_stage(stage, pre_path, post_path, work_dir, options, stage_progress)
         done += weight
     progress(1.0)
-    return ComparisonResult(results=results, work_dir=Path(work_dir),
-                            seconds=time.perf_counter() - start)
+    return ComparisonResult(
+        results=results, work_dir=Path(work_dir), seconds=time.perf_counter() - start
+    )
 
 
 def run_stage(
@@ -142,18 +150,42 @@ def run_stage(
         )
     result: Any
     if stage == "align":
-        result = align(Path(pre_path), Path(post_path), work / PRE_ALIGNED, work / POST_ALIGNED,
-                       options.align, progress)
+        result = align(
+            Path(pre_path),
+            Path(post_path),
+            work / PRE_ALIGNED,
+            work / POST_ALIGNED,
+            options.align,
+            progress,
+        )
     elif stage == "coregister":
-        result = coregister(work / PRE_ALIGNED, work / POST_ALIGNED, work / POST_COREGISTERED,
-                            options.coregister, progress, stable_mask_out=work / STABLE_MASK)
+        result = coregister(
+            work / PRE_ALIGNED,
+            work / POST_ALIGNED,
+            work / POST_COREGISTERED,
+            options.coregister,
+            progress,
+            stable_mask_out=work / STABLE_MASK,
+        )
     elif stage == "difference":
-        result = difference(work / PRE_ALIGNED, work / POST_COREGISTERED, work / DH,
-                            work / SIGNIFICANCE, options.difference,
-                            stable_mask_path=work / STABLE_MASK, progress=progress)
+        result = difference(
+            work / PRE_ALIGNED,
+            work / POST_COREGISTERED,
+            work / DH,
+            work / SIGNIFICANCE,
+            options.difference,
+            stable_mask_path=work / STABLE_MASK,
+            progress=progress,
+        )
     else:
-        result = vectorize(work / DH, work / SIGNIFICANCE, work / DETECTIONS,
-                           options.vectorize, options.method, progress)
+        result = vectorize(
+            work / DH,
+            work / SIGNIFICANCE,
+            work / DETECTIONS,
+            options.vectorize,
+            options.method,
+            progress,
+        )
     return result.to_dict()
 
 

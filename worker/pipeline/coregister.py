@@ -34,14 +34,9 @@ from rasterio.transform import Affine
 from scipy import ndimage
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import (
-    MASK_NODATA,
-    is_metric_projected,
-    read_elevation,
-    warp_elevation,
-    write_geotiff,
-)
+from worker.pipeline.geo import is_metric_projected
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.raster_io import MASK_NODATA, read_elevation, warp_elevation, write_geotiff
 
 STABLE, UNSTABLE = 1, 0  # values of the stable-terrain mask file; 255 = nodata in either DSM
 
@@ -190,8 +185,9 @@ def coregister(
     )
 
 
-def _centred_coordinates(transform: Affine, shape: tuple[int, int]
-                         ) -> tuple[np.ndarray, np.ndarray]:
+def _centred_coordinates(
+    transform: Affine, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     """Map x and y of pixel centres relative to the grid centre (broadcastable arrays)."""
     rows, cols = shape
     dx = (np.arange(cols) + 0.5 - cols / 2) * transform.a
@@ -199,8 +195,9 @@ def _centred_coordinates(transform: Affine, shape: tuple[int, int]
     return dx[np.newaxis, :], dy[:, np.newaxis]
 
 
-def _has_horizontal_information(pre: np.ndarray, valid: np.ndarray, res_x: float,
-                                res_y: float, options: CoregisterOptions) -> bool:
+def _has_horizontal_information(
+    pre: np.ndarray, valid: np.ndarray, res_x: float, res_y: float, options: CoregisterOptions
+) -> bool:
     # Smooth first so that pixel noise on flat ground does not read as slope.
     filled = np.where(np.isfinite(pre), pre, np.nanmedian(pre))
     smooth = ndimage.gaussian_filter(filled.astype(np.float64), sigma=2.0)
@@ -225,8 +222,14 @@ def _smooth(array: np.ndarray, sigma_px: float) -> np.ndarray:
     return smooth.astype(np.float32)
 
 
-def _nuth_kaab(pre: np.ndarray, post: np.ndarray, stable: np.ndarray, transform: Affine,
-               crs: rasterio.crs.CRS, options: CoregisterOptions) -> tuple[float, float]:
+def _nuth_kaab(
+    pre: np.ndarray,
+    post: np.ndarray,
+    stable: np.ndarray,
+    transform: Affine,
+    crs: rasterio.crs.CRS,
+    options: CoregisterOptions,
+) -> tuple[float, float]:
     """Horizontal correction (east, north) in metres to apply to post."""
     import xdem  # slow to import; only this stage needs it
 
@@ -238,16 +241,23 @@ def _nuth_kaab(pre: np.ndarray, post: np.ndarray, stable: np.ndarray, transform:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            coreg.fit(pre, post, inlier_mask=stable, transform=transform, crs=crs,
-                      random_state=options.seed)
+            coreg.fit(
+                pre,
+                post,
+                inlier_mask=stable,
+                transform=transform,
+                crs=crs,
+                random_state=options.seed,
+            )
         except ValueError as exc:
             raise InputError(f"co-registration failed to converge ({exc})") from exc
     affine = coreg.meta["outputs"]["affine"]
     return float(affine["shift_x"]), float(affine["shift_y"])
 
 
-def _apply_shift(post: np.ndarray, transform: Affine, crs: rasterio.crs.CRS,
-                 shift: tuple[float, float]) -> np.ndarray:
+def _apply_shift(
+    post: np.ndarray, transform: Affine, crs: rasterio.crs.CRS, shift: tuple[float, float]
+) -> np.ndarray:
     """post(x - east, y - north) on the same grid, by bilinear resampling."""
     if shift == (0.0, 0.0):
         return post.copy()
@@ -255,13 +265,15 @@ def _apply_shift(post: np.ndarray, transform: Affine, crs: rasterio.crs.CRS,
     return warp_elevation(post, moved, crs, transform, crs, post.shape)
 
 
-def _fit_plane(dh: np.ndarray, stable: np.ndarray, dx: np.ndarray, dy: np.ndarray,
-               options: CoregisterOptions) -> _Plane:
+def _fit_plane(
+    dh: np.ndarray, stable: np.ndarray, dx: np.ndarray, dy: np.ndarray, options: CoregisterOptions
+) -> _Plane:
     """Robust fit of dh on stable terrain: the median, or a plane when `tilt` is on."""
     rows, cols = np.nonzero(stable & np.isfinite(dh))
     if rows.size > options.subsample:
-        pick = np.random.default_rng(options.seed).choice(rows.size, options.subsample,
-                                                          replace=False)
+        pick = np.random.default_rng(options.seed).choice(
+            rows.size, options.subsample, replace=False
+        )
         pick.sort()
         rows, cols = rows[pick], cols[pick]
     values = dh[rows, cols].astype(np.float64)
@@ -277,8 +289,9 @@ def _fit_plane(dh: np.ndarray, stable: np.ndarray, dx: np.ndarray, dy: np.ndarra
     return _Plane(*(float(c) for c in coef))
 
 
-def _stable_terrain(dh: np.ndarray, valid: np.ndarray, stable: np.ndarray,
-                    options: CoregisterOptions) -> np.ndarray:
+def _stable_terrain(
+    dh: np.ndarray, valid: np.ndarray, stable: np.ndarray, options: CoregisterOptions
+) -> np.ndarray:
     values = dh[stable & valid]
     median, spread = float(np.median(values)), _nmad(values)
     with np.errstate(invalid="ignore"):

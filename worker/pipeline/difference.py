@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import MASK_NODATA, read_elevation, write_geotiff
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.raster_io import MASK_NODATA, read_elevation, write_geotiff
 
 NO_CHANGE, LOSS, GAIN = 0, 1, 2
 LOD_Z = 1.96  # two-sided 95 % for a normal error
@@ -105,8 +105,9 @@ def difference(
     )
 
 
-def _stable_pixels(dh: np.ndarray, valid: np.ndarray, stable_mask_path: Path | None,
-                   options: DifferenceOptions) -> np.ndarray:
+def _stable_pixels(
+    dh: np.ndarray, valid: np.ndarray, stable_mask_path: Path | None, options: DifferenceOptions
+) -> np.ndarray:
     if stable_mask_path is not None:
         mask, _ = read_elevation(stable_mask_path)
         if mask.shape != dh.shape:

@@ -41,16 +41,19 @@ class DsmInfo:
         return data
 
 
-def inspect_dsm(path: Path) -> DsmInfo:
-    """Open `path`, read every block, and describe it; raise InputError if it is unusable."""
+def inspect_dsm(path: Path, label: str | None = None) -> DsmInfo:
+    """Open `path`, read every block, and describe it; raise InputError if it is unusable.
+
+    `label` names the file in error messages (e.g. the name a user uploaded it under).
+    """
     path = Path(path)
-    name = path.name
+    name = label or path.name
     if not path.is_file():
         raise InputError(f"{name} does not exist or is not a file")
     try:
         src = rasterio.open(path)
     except RasterioError as exc:
-        raise InputError(f"{name} is not a raster file that can be read") from exc
+        raise InputError(f"{name} is not a GeoTIFF, nor any raster file that can be read") from exc
     with src:
         if src.driver != "GTiff":
             raise InputError(f"{name} is not a GeoTIFF (it is a {src.driver} file)")

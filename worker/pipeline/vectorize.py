@@ -34,8 +34,9 @@ from shapely.geometry import shape as to_shape
 from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.difference import GAIN, LOSS
 from worker.pipeline.errors import InputError
-from worker.pipeline.geo import crs_to_string, read_elevation, to_wgs84_geojson
+from worker.pipeline.geo import crs_to_string, to_wgs84_geojson
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.raster_io import read_elevation
 
 METHODS = ("threshold",)
 
@@ -96,9 +97,18 @@ def vectorize(
         for label in keep:
             window = objects[label - 1]
             features.append(
-                _feature(label, labels[window], dh[window], significance[window],
-                         rasterio.windows.transform(_to_window(window), transform),
-                         crs, pixel_area, lod, options, method)
+                _feature(
+                    label,
+                    labels[window],
+                    dh[window],
+                    significance[window],
+                    rasterio.windows.transform(_to_window(window), transform),
+                    crs,
+                    pixel_area,
+                    lod,
+                    options,
+                    method,
+                )
             )
     progress(0.9)
     features.sort(key=lambda f: (-f["properties"]["area_m2"], f["bbox"]))
@@ -138,13 +148,23 @@ def _regions(significance: np.ndarray, options: VectorizeOptions) -> np.ndarray:
 
 def _to_window(slices: tuple[slice, slice]) -> rasterio.windows.Window:
     rows, cols = slices
-    return rasterio.windows.Window(cols.start, rows.start, cols.stop - cols.start,
-                                   rows.stop - rows.start)
+    return rasterio.windows.Window(
+        cols.start, rows.start, cols.stop - cols.start, rows.stop - rows.start
+    )
 
 
-def _feature(label: int, labels: np.ndarray, dh: np.ndarray, significance: np.ndarray,
-             transform: rasterio.Affine, crs: rasterio.crs.CRS, pixel_area: float,
-             lod: float | None, options: VectorizeOptions, method: str) -> dict[str, Any]:
+def _feature(
+    label: int,
+    labels: np.ndarray,
+    dh: np.ndarray,
+    significance: np.ndarray,
+    transform: rasterio.Affine,
+    crs: rasterio.crs.CRS,
+    pixel_area: float,
+    lod: float | None,
+    options: VectorizeOptions,
+    method: str,
+) -> dict[str, Any]:
     inside = labels == label
     polygons = [
         to_shape(geom)
@@ -179,8 +199,9 @@ def _feature(label: int, labels: np.ndarray, dh: np.ndarray, significance: np.nd
     }
 
 
-def _score(mean_abs_dh: float, area_m2: float, lod: float | None,
-           options: VectorizeOptions) -> float:
+def _score(
+    mean_abs_dh: float, area_m2: float, lod: float | None, options: VectorizeOptions
+) -> float:
     magnitude = 1.0 - math.exp(-(mean_abs_dh / lod - 1.0)) if lod else 1.0
     size = 1.0 - math.exp(-area_m2 / (2.0 * max(options.min_area_m2, 1e-9)))
     return max(0.0, min(1.0, magnitude)) * size

@@ -26,7 +26,8 @@ import rasterio
 from pyproj import CRS, Transformer
 from rasterio.transform import Affine, from_origin
 
-from worker.pipeline.geo import utm_crs_for_lonlat, write_geotiff
+from worker.pipeline.geo import utm_crs_for_lonlat
+from worker.pipeline.raster_io import write_geotiff
 
 # Below this |dh| (m) a pixel counts as unchanged in the truth.
 TRUTH_EPSILON_M = 1e-3
@@ -144,8 +145,14 @@ class _Slide:
     direction: tuple[float, float]  # unit vector downslope
 
     @classmethod
-    def plant(cls, spec: SlideSpec, terrain: _Terrain, centre: tuple[float, float],
-              extent_m: float, pixel_size_m: float) -> _Slide:
+    def plant(
+        cls,
+        spec: SlideSpec,
+        terrain: _Terrain,
+        centre: tuple[float, float],
+        extent_m: float,
+        pixel_size_m: float,
+    ) -> _Slide:
         gx, gy = terrain.gradient(*centre)
         norm = math.hypot(gx, gy)
         # Downslope = minus the gradient; on flat terrain pick east.
@@ -254,8 +261,14 @@ def _pixel_centres(transform: Affine, rows: int, cols: int) -> tuple[np.ndarray,
     return np.asarray(xs), np.asarray(ys)
 
 
-def _truth(slide: _Slide, dz_on_grid: np.ndarray, pixel_size_m: float, geographic: bool,
-           rows: int, cols: int) -> SlideTruth:
+def _truth(
+    slide: _Slide,
+    dz_on_grid: np.ndarray,
+    pixel_size_m: float,
+    geographic: bool,
+    rows: int,
+    cols: int,
+) -> SlideTruth:
     mask = np.abs(dz_on_grid) > TRUTH_EPSILON_M
     if geographic:
         # Measure on a metric grid of the nominal pixel size centred like the raster.

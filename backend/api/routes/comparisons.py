@@ -36,7 +36,12 @@ def create(
     try:
         comparison, job = create_comparison(
             celery,
-            session, site, body.pre_survey_id, body.post_survey_id, body.method, body.parameters
+            session,
+            site,
+            body.pre_survey_id,
+            body.post_survey_id,
+            body.method,
+            body.parameters,
         )
     except ComparisonRejected as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
