@@ -9,6 +9,7 @@ from shapely.geometry import shape
 from shapely.geometry.polygon import orient
 from sqlalchemy import create_engine, text
 
+from backend.db.models import Survey
 from tests.api_helpers import run_job_inline, upload_dsm
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
@@ -208,13 +209,8 @@ def test_failed_job_reports_its_reason_and_can_be_retried(
     conflict = client.post(f"/api/v1/sites/{site_id}/jobs/{job_id}/retry", headers=auth)
     assert conflict.status_code == 409
 
-    # The pre DSM's file disappears from storage (e.g. a disk was swapped).
-    survey = client.get(f"/api/v1/sites/{site_id}/surveys/{surveys[0]}", headers=auth).json()
-    products = client.get(
-        f"/api/v1/sites/{site_id}/surveys/{survey['id']}/products", headers=auth
-    ).json()
-    stored = app.state.storage
-    dsm_path = next(stored.absolute(p.file.path) for p in _products(app, products[0]["id"]))
+    # The pre DSM's file gets damaged on disk (e.g. a failing drive).
+    dsm_path = stored_dsm_path(app, surveys[0])
     kept = dsm_path.read_bytes()
     dsm_path.write_bytes(b"garbage")
     run_job_inline(job_id)
@@ -238,10 +234,8 @@ def test_failed_job_reports_its_reason_and_can_be_retried(
     assert job["stages"][0]["attempts"] == 2
 
 
-def _products(app: FastAPI, product_id: int):
-    from backend.db.models import Product
-
+def stored_dsm_path(app: FastAPI, survey_id: int):
     with app.state.sessionmaker() as session:
-        product = session.get(Product, product_id)
-        _ = product.file
-        return [product]
+        survey = session.get(Survey, survey_id)
+        dsm = next(p for p in survey.products if p.kind == "dsm")
+        return app.state.storage.absolute(dsm.file.path)

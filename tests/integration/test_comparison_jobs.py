@@ -107,3 +107,31 @@ def test_worker_killed_mid_stage_loses_no_job(
     check_result(client, auth, site, job, pair[0])
     attempts = {s["stage"]: s["attempts"] for s in job["stages"]}
     assert attempts == {"align": 1, "coregister": 2, "difference": 1, "vectorize": 1}
+
+
+def test_transient_failure_is_retried_with_backoff(
+    tmp_path: Path, start_worker: Callable[..., SlidewatchProcess],
+    pair: tuple[DsmPair, DsmPairPaths],
+) -> None:  # fmt: skip
+    settings = Settings(data_dir=tmp_path / "data")
+    client, auth = api_client(settings)
+    # Something else holds the path where the job writes its files (a file, not a
+    # folder): writing fails with an OSError until it goes away.
+    blocker = settings.storage_dir / "comparisons" / "1"
+    blocker.parent.mkdir(parents=True)
+    blocker.write_text("in the way")
+    start_worker(settings)
+    site, job_id = submit_comparison(client, auth, pair[1])
+
+    def retrying(job: dict) -> bool:
+        return "retrying in 2 s" in (job["stages"][0]["error"] or "") or job["state"] == "failed"
+
+    job = wait_for_job(client, auth, site, job_id, retrying)
+    assert job["state"] == "running" and job["stages"][0]["state"] == "pending", job
+    assert "attempt 1 failed" in job["stages"][0]["error"]
+    blocker.unlink()
+
+    job = wait_for_job(client, auth, site, job_id, lambda j: j["state"] in ("succeeded", "failed"))
+    check_result(client, auth, site, job, pair[0])
+    assert job["stages"][0]["attempts"] == 2
+    assert job["stages"][0]["error"] is None
