@@ -50,6 +50,33 @@ class Settings(BaseSettings):
     api_host: str = "127.0.0.1"
     api_port: int = 8000
     worker_concurrency: int = Field(default=1, description="Worker processes per worker.")
+    public_url: str | None = Field(
+        default=None,
+        description="Base URL of the API as users reach it (links in e-mails, webhooks and "
+        "reports). Default: http://SLIDEWATCH_API_HOST:SLIDEWATCH_API_PORT.",
+    )
+    schedule_tick_s: float = Field(
+        default=15.0, description="How often beat looks for monitoring schedules that are due."
+    )
+    smtp_host: str | None = Field(
+        default=None, description="SMTP server for alert and report e-mails; unset: no e-mail."
+    )
+    smtp_port: int = 25
+    smtp_username: str | None = None
+    smtp_password: str | None = None
+    smtp_security: str = Field(
+        default="none", description="none, starttls or ssl (implicit TLS, usually port 465)."
+    )
+    smtp_from: str = "slidewatch@localhost"
+    smtp_timeout_s: float = 30.0
+    delivery_max_attempts: int = Field(
+        default=6, description="Attempts of one webhook call or e-mail before it is given up."
+    )
+    delivery_retry_base_s: float = Field(
+        default=30.0,
+        description="Backoff of deliveries: base, 2 × base, 4 × base, ... (at most 1 hour).",
+    )
+    webhook_timeout_s: float = 10.0
 
     @property
     def storage_dir(self) -> Path:
@@ -58,6 +85,10 @@ class Settings(BaseSettings):
     @property
     def work_dir(self) -> Path:
         return self.data_dir / "work"
+
+    @property
+    def resolved_public_url(self) -> str:
+        return (self.public_url or f"http://{self.api_host}:{self.api_port}").rstrip("/")
 
     @property
     def resolved_database_url(self) -> str:

@@ -5,7 +5,7 @@ from typing import Annotated
 
 from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from fastapi.security import APIKeyQuery, HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.config import Settings
@@ -44,19 +44,29 @@ StorageDep = Annotated[LocalStorage, Depends(get_storage)]
 CeleryDep = Annotated[Celery, Depends(get_celery)]
 
 _bearer = HTTPBearer(auto_error=False, description="An API token from `slidewatch create-token`.")
+_api_key = APIKeyQuery(
+    name="api_key",
+    auto_error=False,
+    description="The API token as a query parameter, for GIS clients that cannot send a "
+    "header (QGIS XYZ and WMTS layers, GDAL /vsicurl/). Query strings end up in access "
+    "logs and proxies: prefer the Authorization header where the client can send it.",
+)
 
 
 def require_token(
     session: SessionDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    api_key: Annotated[str | None, Depends(_api_key)] = None,
 ) -> ApiToken:
-    if credentials is None:
+    """The token from `Authorization: Bearer <token>`, else from `?api_key=<token>`."""
+    secret = credentials.credentials if credentials is not None else api_key
+    if not secret:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,
             "missing API token: send 'Authorization: Bearer <token>'",
             headers={"WWW-Authenticate": "Bearer"},
         )
-    token = authenticate(session, credentials.credentials)
+    token = authenticate(session, secret)
     if token is None:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,

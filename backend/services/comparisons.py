@@ -7,10 +7,8 @@ from sqlalchemy.orm import Session
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
 from backend.services.jobs import QueueUnavailable, new_job, start_job
 from worker.jobs.comparison import ComparisonJob
-from worker.pipeline.comparison import ComparisonOptions
+from worker.pipeline.comparison import METHODS, ComparisonOptions
 from worker.pipeline.errors import InputError
-
-METHODS = ("threshold",)
 
 
 class ComparisonRejected(ValueError):
@@ -51,7 +49,7 @@ def create_comparison(
         if overlap <= 0:
             raise ComparisonRejected(f"the DSMs of surveys {pre.id} and {post.id} do not overlap")
     try:
-        options = ComparisonOptions.from_dict(parameters)
+        options = ComparisonOptions.from_dict({**parameters, "method": method})
     except (InputError, TypeError, ValueError) as exc:
         raise ComparisonRejected(f"invalid parameters: {exc}") from exc
 

@@ -18,12 +18,12 @@ from worker.pipeline.progress import ProgressFn
 
 # Files of a stage that become downloadable products, by product kind.
 STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
-    "coregister": {"post_coregistered": ("post_coregistered.tif", "image/tiff")},
+    "coregister": {"post_coregistered": (pipeline.POST_COREGISTERED, "image/tiff")},
     "difference": {
-        "dh": ("dh.tif", "image/tiff"),
-        "significance": ("significance.tif", "image/tiff"),
+        "dh": (pipeline.DH, "image/tiff"),
+        "significance": (pipeline.SIGNIFICANCE, "image/tiff"),
     },
-    "vectorize": {"detections": ("detections.geojson", "application/geo+json")},
+    "vectorize": {"detections": (pipeline.DETECTIONS, "application/geo+json")},
 }
 
 
@@ -83,7 +83,7 @@ class ComparisonJob:
         for kind, (file_name, media_type) in STAGE_PRODUCTS.get(stage, {}).items():
             self._register_product(session, comparison, kind, f"{folder}/{file_name}", media_type)
         if stage == "vectorize":
-            self._store_detections(session, comparison, f"{folder}/detections.geojson")
+            self._store_detections(session, comparison, f"{folder}/{pipeline.DETECTIONS}")
 
     def _register_product(
         self, session: Session, comparison: Comparison, kind: str, relative: str, media_type: str
