@@ -1,7 +1,7 @@
 """Typed dependencies shared by the routes: settings, database session, storage, auth."""
 
 from collections.abc import Iterator
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
@@ -12,6 +12,8 @@ from backend.config import Settings
 from backend.db.models import ApiToken, Site
 from backend.security import authenticate
 from backend.storage import LocalStorage
+
+Owned = TypeVar("Owned")
 
 
 def get_settings_dep(request: Request) -> Settings:
@@ -87,3 +89,15 @@ def get_site(site_id: int, session: SessionDep, _token: CurrentToken) -> Site:
 
 
 SiteDep = Annotated[Site, Depends(get_site)]
+
+
+def owned_by_site(
+    session: Session, model: type[Owned], site: Site, item_id: int, noun: str
+) -> Owned:
+    """The `model` row `item_id` if it belongs to `site`; 404 otherwise, whoever owns it."""
+    item = session.get(model, item_id)
+    if item is None or item.site_id != site.id:  # type: ignore[attr-defined]
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"{noun} {item_id} not found in site {site.id}"
+        )
+    return item

@@ -61,16 +61,18 @@ def check_result(client, auth, site: int, job: dict, pair: DsmPair) -> list[dict
     return features
 
 
-@pytest.mark.parametrize("deployment", ["redis+postgresql", "embedded"])
+@pytest.fixture(params=["redis+postgresql", "embedded"])
+def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
+    """Scaled-out (Redis + PostgreSQL) and embedded default (SQLite database and broker)."""
+    if request.param == "redis+postgresql":
+        return request.getfixturevalue("redis_postgres_settings")
+    return Settings(data_dir=tmp_path / "data")
+
+
 def test_comparison_runs_to_the_end_in_a_worker(
-    deployment: str, request: pytest.FixtureRequest, tmp_path: Path,
+    settings: Settings,
     start_worker: Callable[..., SlidewatchProcess], pair: tuple[DsmPair, DsmPairPaths],
 ) -> None:  # fmt: skip
-    settings = (
-        request.getfixturevalue("redis_postgres_settings")
-        if deployment == "redis+postgresql"
-        else Settings(data_dir=tmp_path / "data")
-    )
     client, auth = api_client(settings)
     start_worker(settings)
     site, job_id = submit_comparison(client, auth, pair[1])
@@ -79,16 +81,10 @@ def test_comparison_runs_to_the_end_in_a_worker(
     assert [s["attempts"] for s in job["stages"]] == [1, 1, 1, 1]
 
 
-@pytest.mark.parametrize("deployment", ["redis+postgresql", "embedded"])
 def test_worker_killed_mid_stage_loses_no_job(
-    deployment: str, request: pytest.FixtureRequest, tmp_path: Path,
+    settings: Settings,
     start_worker: Callable[..., SlidewatchProcess], pair: tuple[DsmPair, DsmPairPaths],
 ) -> None:  # fmt: skip
-    settings = (
-        request.getfixturevalue("redis_postgres_settings")
-        if deployment == "redis+postgresql"
-        else Settings(data_dir=tmp_path / "data")
-    )
     client, auth = api_client(settings)
     worker = start_worker(settings)
     site, job_id = submit_comparison(client, auth, pair[1])
@@ -113,7 +109,7 @@ def test_transient_failure_is_retried_with_backoff(
     tmp_path: Path, start_worker: Callable[..., SlidewatchProcess],
     pair: tuple[DsmPair, DsmPairPaths],
 ) -> None:  # fmt: skip
-    settings = Settings(data_dir=tmp_path / "data")
+    settings = Settings(data_dir=tmp_path / "data")  # embedded: the fastest to set up
     client, auth = api_client(settings)
     # Something else holds the path where the job writes its files (a file, not a
     # folder): writing fails with an OSError until it goes away.

@@ -2,7 +2,7 @@ from fastapi import APIRouter, HTTPException, Response, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
-from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep
+from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ComparisonCreate, ComparisonCreated, ComparisonOut, ProductOut
 from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
 from backend.db.models import Comparison, Job, Site
@@ -14,12 +14,7 @@ router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
 
 
 def comparison_of_site(session: SessionDep, site: Site, comparison_id: int) -> Comparison:
-    comparison = session.get(Comparison, comparison_id)
-    if comparison is None or comparison.site_id != site.id:
-        raise HTTPException(
-            status.HTTP_404_NOT_FOUND, f"comparison {comparison_id} not found in site {site.id}"
-        )
-    return comparison
+    return owned_by_site(session, Comparison, site, comparison_id, "comparison")
 
 
 def _job_of(session: SessionDep, comparison: Comparison) -> Job | None:

@@ -1,7 +1,7 @@
 from fastapi import APIRouter, HTTPException, status
 from sqlalchemy import select
 
-from backend.api.deps import CeleryDep, SessionDep, SiteDep
+from backend.api.deps import CeleryDep, SessionDep, SiteDep, owned_by_site
 from backend.api.schemas import JobOut
 from backend.api.serializers import job_out
 from backend.db.models import Comparison, Job, JobState, Site
@@ -11,10 +11,7 @@ router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
 
 
 def job_of_site(session: SessionDep, site: Site, job_id: int) -> Job:
-    job = session.get(Job, job_id)
-    if job is None or job.site_id != site.id:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} not found in site {site.id}")
-    return job
+    return owned_by_site(session, Job, site, job_id, "job")
 
 
 @router.get("", response_model=list[JobOut])

@@ -1,7 +1,7 @@
 from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse
 
-from backend.api.deps import SessionDep, SiteDep, StorageDep
+from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut
 from backend.api.serializers import product_out
 from backend.db.models import Product, Site
@@ -10,12 +10,7 @@ router = APIRouter(prefix="/sites/{site_id}/products", tags=["products"])
 
 
 def product_of_site(session: SessionDep, site: Site, product_id: int) -> Product:
-    product = session.get(Product, product_id)
-    if product is None or product.site_id != site.id:
-        raise HTTPException(
-            status.HTTP_404_NOT_FOUND, f"product {product_id} not found in site {site.id}"
-        )
-    return product
+    return owned_by_site(session, Product, site, product_id, "product")
 
 
 @router.get("/{product_id}", response_model=ProductOut)

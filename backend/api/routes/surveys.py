@@ -4,7 +4,7 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from sqlalchemy import select
 
-from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep
+from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut, SurveyOut
 from backend.api.serializers import product_out
 from backend.db.models import Site, Survey
@@ -17,12 +17,7 @@ router = APIRouter(prefix="/sites/{site_id}/surveys", tags=["surveys"])
 
 
 def survey_of_site(session: SessionDep, site: Site, survey_id: int) -> Survey:
-    survey = session.get(Survey, survey_id)
-    if survey is None or survey.site_id != site.id:
-        raise HTTPException(
-            status.HTTP_404_NOT_FOUND, f"survey {survey_id} not found in site {site.id}"
-        )
-    return survey
+    return owned_by_site(session, Survey, site, survey_id, "survey")
 
 
 @router.get("", response_model=list[SurveyOut])
