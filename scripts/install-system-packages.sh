@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Debian packages slidewatch needs at run time (open3d loads libusb and libGL/libgomp).
+# Debian packages slidewatch needs at run time (open3d loads libusb and libGL/libgomp), and
+# for its tests: gdal-bin (ogrinfo, a real OGC API – Features client), poppler-utils
+# (pdftoppm, pdftotext for reports).
 # Installs only what is missing, so repeated runs are fast and need no network.
 set -euo pipefail
-packages=(libusb-1.0-0 libgl1 libegl1 libgomp1 "$@")
+packages=(libusb-1.0-0 libgl1 libegl1 libgomp1 gdal-bin poppler-utils "$@")
 missing=()
 for package in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q "install ok installed" \

@@ -6,6 +6,9 @@ from backend.config import Settings, get_settings
 
 RUN_STAGE_TASK = "slidewatch.run_stage"
 RECOVER_TASK = "slidewatch.recover_stalled_jobs"
+DELIVER_TASK = "slidewatch.deliver"
+BUILD_REPORT_TASK = "slidewatch.build_report"
+MONITORING_TICK_TASK = "slidewatch.monitoring_tick"
 QUEUE = "slidewatch"
 
 
@@ -16,7 +19,11 @@ def transport_options(settings: Settings) -> dict[str, object]:
 
 
 def create_celery(settings: Settings) -> Celery:
-    app = Celery("slidewatch", broker=settings.resolved_broker_url, include=["worker.tasks"])
+    app = Celery(
+        "slidewatch",
+        broker=settings.resolved_broker_url,
+        include=["worker.tasks", "worker.tasks_monitoring"],
+    )
     app.conf.update(
         # A task is acknowledged only when it has finished, so a worker that dies
         # mid-stage leaves the message to be delivered again.
@@ -34,7 +41,13 @@ def create_celery(settings: Settings) -> Celery:
             "recover-stalled-jobs": {
                 "task": RECOVER_TASK,
                 "schedule": float(settings.recovery_interval_s),
-            }
+            },
+            # Due monitoring schedules are claimed in the database: a second or restarted
+            # beat only sends more ticks, never a second run (backend/services/schedules.py).
+            "monitoring-tick": {
+                "task": MONITORING_TICK_TASK,
+                "schedule": float(settings.schedule_tick_s),
+            },
         },
     )
     return app

@@ -1,9 +1,28 @@
 """The FastAPI application."""
 
+import os
+
+# A VRT can point GDAL at any file on the machine: the API never reads one. This must be
+# set before GDAL registers its drivers (on the first raster opened in the process).
+os.environ.setdefault("GDAL_SKIP", "VRT")
+
 from fastapi import APIRouter, FastAPI
 from sqlalchemy.orm import sessionmaker
 
-from backend.api.routes import comparisons, health, jobs, products, sites, surveys
+from backend.api.routes import (
+    alerts,
+    comparisons,
+    health,
+    jobs,
+    ogc,
+    products,
+    reports,
+    schedules,
+    sites,
+    stac,
+    surveys,
+    tiles,
+)
 from backend.config import Settings, get_settings
 from backend.db.session import make_engine
 from backend.storage import LocalStorage
@@ -20,7 +39,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="0.1.0",
         summary="Landslide detection from multi-temporal drone surveys.",
         description="Every endpoint but `/health` needs an API token: "
-        "`Authorization: Bearer <token>` (create one with `slidewatch create-token`).",
+        "`Authorization: Bearer <token>` (create one with `slidewatch create-token`), or, "
+        "for GIS clients that cannot send headers, `?api_key=<token>` (query strings end up "
+        "in access logs: prefer the header). GIS users: OGC API – Features at `/ogc`, "
+        "STAC at `/stac/catalog.json`, map tiles and WMTS under `/api/v1/sites/{id}`.",
     )
     engine = make_engine(settings.resolved_database_url)
     app.state.settings = settings
@@ -31,7 +53,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     api = APIRouter(prefix=API_PREFIX)
-    for module in (sites, surveys, comparisons, jobs, products):
+    for module in (
+        sites,
+        surveys,
+        comparisons,
+        jobs,
+        products,
+        tiles,
+        alerts,
+        schedules,
+        reports,
+    ):
         api.include_router(module.router)
     app.include_router(api)
+    app.include_router(ogc.router)
+    app.include_router(stac.router)
     return app

@@ -7,7 +7,7 @@ only after the commit, so a failed delete never leaves rows pointing at missing 
 from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session
 
-from backend.db.models import Comparison, Product, Site, StoredFile, Survey
+from backend.db.models import Comparison, Product, Report, Site, StoredFile, Survey
 from backend.storage import LocalStorage
 from worker.jobs.comparison import comparison_folder
 
@@ -19,6 +19,18 @@ class StillInUse(Exception):
 def _files_of(session: Session, *conditions) -> list[StoredFile]:
     product_files = select(Product.file_id).where(or_(*conditions))
     return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(product_files))))
+
+
+def _source_files_of(session: Session, *conditions) -> list[StoredFile]:
+    """The uploaded originals of surveys (their DSM product is a COG made from it)."""
+    sources = select(Survey.source_file_id).where(or_(*conditions))
+    return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(sources))))
+
+
+def _report_files_of(session: Session, site_id: int) -> list[StoredFile]:
+    reports = select(Report.pdf_file_id, Report.html_file_id).where(Report.site_id == site_id)
+    ids = {i for row in session.execute(reports) for i in row if i is not None}
+    return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(ids))))
 
 
 def _remove(
@@ -51,6 +63,7 @@ def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> No
             "delete them first"
         )
     files = _files_of(session, Product.survey_id == survey.id)
+    files += _source_files_of(session, Survey.id == survey.id)
     session.execute(delete(Survey).where(Survey.id == survey.id))
     _remove(session, storage, files, [])
 
@@ -60,5 +73,7 @@ def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
         select(Comparison.id).where(Comparison.site_id == site.id)
     ).all()
     files = _files_of(session, Product.site_id == site.id)
+    files += _source_files_of(session, Survey.site_id == site.id)
+    files += _report_files_of(session, site.id)
     session.execute(delete(Site).where(Site.id == site.id))
     _remove(session, storage, files, [comparison_folder(c) for c in comparison_ids])

@@ -1,4 +1,8 @@
-"""Create a survey from an uploaded DSM GeoTIFF."""
+"""Create a survey from an uploaded DSM GeoTIFF.
+
+The upload is kept as it came (the survey's source file); its `dsm` product is a
+Cloud-Optimized GeoTIFF made from it, which GIS clients and the tile server read.
+"""
 
 from collections.abc import AsyncIterator
 from datetime import datetime
@@ -7,8 +11,11 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
-from backend.storage import LocalStorage, SavedFile
+from backend.storage import LocalStorage, SavedFile, file_digest
+from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.dsm_inspect import inspect_dsm
+
+COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
 
 
 async def create_dsm_survey(
@@ -28,9 +35,24 @@ async def create_dsm_survey(
     row is left behind.
     """
     saved: SavedFile = await storage.save_stream(chunks, f"surveys/{site.id}", ".tif", max_bytes)
+    cog_path = storage.new_relative_path(f"surveys/{site.id}", ".cog.tif")
     try:
         label = f"the upload {original_name!r}" if original_name else "the upload"
         info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path), label)
+        await run_in_threadpool(
+            write_cog,
+            storage.absolute(saved.relative_path),
+            storage.absolute(cog_path),
+            RasterRole.elevation,
+        )
+        cog_size, cog_sha256 = await run_in_threadpool(file_digest, storage.absolute(cog_path))
+        cog = StoredFile(
+            path=cog_path,
+            size_bytes=cog_size,
+            sha256=cog_sha256,
+            media_type=COG_MEDIA_TYPE,
+            original_name=None,
+        )
         stored = StoredFile(
             path=saved.relative_path,
             size_bytes=saved.size_bytes,
@@ -49,16 +71,15 @@ async def create_dsm_survey(
             resolution_m=float(max(info.resolution_m)),
             source_file=stored,
         )
-        session.add_all([stored, survey])
+        session.add_all([stored, cog, survey])
         session.flush()
         session.add(
-            Product(
-                site_id=site.id, survey_id=survey.id, kind="dsm", file_id=stored.id, crs=info.crs
-            )
+            Product(site_id=site.id, survey_id=survey.id, kind="dsm", file_id=cog.id, crs=info.crs)
         )
         session.commit()
     except BaseException:
         session.rollback()
         storage.delete(saved.relative_path)
+        storage.delete(cog_path)
         raise
     return survey

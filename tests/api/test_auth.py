@@ -26,6 +26,30 @@ PROTECTED = [
     ("POST", "/api/v1/sites/1/jobs/1/retry"),
     ("GET", "/api/v1/sites/1/products/1"),
     ("GET", "/api/v1/sites/1/products/1/file"),
+    ("GET", "/api/v1/sites/1/surveys/1/tiles/{layer}/{z}/{x}/{y}.png"),
+    ("GET", "/api/v1/sites/1/comparisons/1/tiles/{layer}/{z}/{x}/{y}.png"),
+    ("GET", "/api/v1/sites/1/surveys/1/tiles/{layer}/tilejson.json"),
+    ("GET", "/api/v1/sites/1/comparisons/1/tiles/{layer}/tilejson.json"),
+    ("GET", "/api/v1/sites/1/wmts/WMTSCapabilities.xml"),
+    ("GET", "/api/v1/sites/1/surveys/1/wmts/WMTSCapabilities.xml"),
+    ("GET", "/api/v1/sites/1/comparisons/1/wmts/WMTSCapabilities.xml"),
+    ("GET", "/api/v1/sites/1/alerts"),
+    ("PUT", "/api/v1/sites/1/alerts"),
+    ("POST", "/api/v1/sites/1/webhooks"),
+    ("GET", "/api/v1/sites/1/webhooks"),
+    ("PATCH", "/api/v1/sites/1/webhooks/1"),
+    ("DELETE", "/api/v1/sites/1/webhooks/1"),
+    ("GET", "/api/v1/sites/1/deliveries"),
+    ("POST", "/api/v1/sites/1/schedules"),
+    ("GET", "/api/v1/sites/1/schedules"),
+    ("GET", "/api/v1/sites/1/schedules/1"),
+    ("PATCH", "/api/v1/sites/1/schedules/1"),
+    ("DELETE", "/api/v1/sites/1/schedules/1"),
+    ("POST", "/api/v1/sites/1/reports"),
+    ("GET", "/api/v1/sites/1/reports"),
+    ("GET", "/api/v1/sites/1/reports/1"),
+    ("GET", "/api/v1/sites/1/reports/1/pdf"),
+    ("GET", "/api/v1/sites/1/reports/1/html"),
 ]
 
 
@@ -40,7 +64,16 @@ def test_every_api_route_is_listed_here(app: FastAPI) -> None:
     routes = set()
     for path, operations in app.openapi()["paths"].items():
         if path.startswith("/api/v1"):
-            for name in ("site_id", "survey_id", "comparison_id", "job_id", "product_id"):
+            for name in (
+                "site_id",
+                "survey_id",
+                "comparison_id",
+                "job_id",
+                "product_id",
+                "webhook_id",
+                "schedule_id",
+                "report_id",
+            ):
                 path = path.replace("{" + name + "}", "{id}")
             routes |= {(method.upper(), path) for method in operations}
     assert routes == listed

@@ -54,7 +54,16 @@ def test_upload_keeps_checksum_crs_and_footprint(
     assert [p["kind"] for p in products] == ["dsm"]
     download = client.get(products[0]["download_url"], headers=auth)
     assert download.status_code == 200
-    assert download.content == data
+    # The DSM product is a Cloud-Optimized GeoTIFF made from the upload: same pixels.
+    assert "cloud-optimized" in products[0]["file"]["media_type"]
+    with (
+        rasterio.MemoryFile(download.content) as memory,
+        memory.open() as cog,
+        rasterio.open(dsm_pair_files.pre) as original,
+    ):
+        assert np.array_equal(cog.read(1), original.read(1))
+        assert cog.crs == original.crs and cog.nodata == original.nodata
+        assert cog.overviews(1) == [] and cog.profile["tiled"]  # 240 px: one tile, no overviews
 
 
 def test_product_download_supports_range_requests(
@@ -64,9 +73,10 @@ def test_product_download_supports_range_requests(
     url = client.get(
         f"/api/v1/sites/{site_id}/surveys/{survey['id']}/products", headers=auth
     ).json()[0]["download_url"]
+    whole = client.get(url, headers=auth).content
     partial = client.get(url, headers={**auth, "Range": "bytes=100-199"})
     assert partial.status_code == 206
-    assert partial.content == dsm_pair_files.pre.read_bytes()[100:200]
+    assert partial.content == whole[100:200]
     assert partial.headers["content-range"].startswith("bytes 100-199/")
 
 

@@ -12,19 +12,28 @@ from sqlalchemy.orm import Session
 
 from backend.config import get_settings
 from backend.db.models import Comparison, Detection, Job, JobState, Product, StoredFile
+from backend.services import alerts
 from backend.storage import LocalStorage, file_digest
 from worker.pipeline import comparison as pipeline
+from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.progress import ProgressFn
 
-# Files of a stage that become downloadable products, by product kind.
+# Files of a stage that become downloadable products, by product kind. Rasters are served as
+# Cloud-Optimized GeoTIFFs made from the stage's file (role: how overviews are resampled).
 STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
-    "coregister": {"post_coregistered": (pipeline.POST_COREGISTERED, "image/tiff")},
+    "coregister": {"post_coregistered": ("post_coregistered.tif", "image/tiff")},
     "difference": {
-        "dh": (pipeline.DH, "image/tiff"),
-        "significance": (pipeline.SIGNIFICANCE, "image/tiff"),
+        "dh": ("dh.tif", "image/tiff"),
+        "significance": ("significance.tif", "image/tiff"),
     },
-    "vectorize": {"detections": (pipeline.DETECTIONS, "application/geo+json")},
+    "vectorize": {"detections": ("detections.geojson", "application/geo+json")},
 }
+RASTER_ROLES: dict[str, RasterRole] = {
+    "post_coregistered": RasterRole.elevation,
+    "dh": RasterRole.elevation,
+    "significance": RasterRole.mask,
+}
+COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
 
 
 def comparison_folder(comparison_id: int) -> str:
@@ -81,7 +90,15 @@ class ComparisonJob:
         comparison = self._comparison(session, job)
         folder = comparison_folder(comparison.id)
         for kind, (file_name, media_type) in STAGE_PRODUCTS.get(stage, {}).items():
-            self._register_product(session, comparison, kind, f"{folder}/{file_name}", media_type)
+            relative = f"{folder}/{file_name}"
+            if kind in RASTER_ROLES:
+                # Same input, same COG: a stage stored again rewrites an identical file.
+                cog = f"{folder}/cog/{file_name}"
+                write_cog(
+                    self.storage.absolute(relative), self.storage.absolute(cog), RASTER_ROLES[kind]
+                )
+                relative, media_type = cog, COG_MEDIA_TYPE
+            self._register_product(session, comparison, kind, relative, media_type)
         if stage == "vectorize":
             self._store_detections(session, comparison, f"{folder}/{pipeline.DETECTIONS}")
 
@@ -112,6 +129,8 @@ class ComparisonJob:
                     crs=None if media_type.endswith("json") else _raster_crs(path),
                 )
             )
+        else:
+            product.file_id = stored.id
 
     def _store_detections(self, session: Session, comparison: Comparison, relative: str) -> None:
         collection = json.loads(self.storage.absolute(relative).read_text())
@@ -150,6 +169,8 @@ class ComparisonJob:
             "total_volume_gain_m3": round(sum(d.volume_gain_m3 for d in detections), 3),
             "stages": results,
         }
+        session.flush()
+        alerts.guarded(alerts.comparison_succeeded, session, comparison)
 
     def on_failure(self, session: Session, job: Job, reason: str) -> None:
         comparison = session.get(Comparison, job.comparison_id)

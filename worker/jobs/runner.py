@@ -18,6 +18,7 @@ from sqlalchemy.orm import Session
 from backend.config import get_settings
 from backend.db.models import Job, JobState, StageRun, StageState
 from backend.db.session import session_scope
+from backend.services import alerts
 from worker.jobs.registry import job_kind
 
 log = logging.getLogger(__name__)
@@ -179,3 +180,5 @@ def fail_job(job_id: int, stage: str, reason: str) -> None:
         job.error = f"{stage}: {reason}"
         job.finished_at = utcnow()
         job_kind(job.kind).on_failure(session, job, job.error)
+        session.flush()
+        alerts.guarded(alerts.job_failed, session, job)

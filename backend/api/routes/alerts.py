@@ -1,0 +1,100 @@
+"""Alert thresholds, webhooks and the delivery log of a site."""
+
+import secrets
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response, status
+from sqlalchemy import select
+
+from backend.api.deps import SessionDep, SiteDep, owned_by_site
+from backend.api.schemas_monitoring import (
+    AlertSettingsIn,
+    AlertSettingsOut,
+    DeliveryOut,
+    WebhookCreate,
+    WebhookCreated,
+    WebhookOut,
+    WebhookUpdate,
+)
+from backend.db.models import AlertSettings, Delivery, Webhook, utcnow
+from backend.services.alerts import alert_settings
+
+router = APIRouter(prefix="/sites/{site_id}", tags=["alerts"])
+
+
+@router.get("/alerts", response_model=AlertSettingsOut, summary="When the site alerts")
+def get_alert_settings(site: SiteDep, session: SessionDep) -> AlertSettings:
+    return alert_settings(session, site.id)
+
+
+@router.put("/alerts", response_model=AlertSettingsOut, summary="Set when the site alerts")
+def put_alert_settings(body: AlertSettingsIn, site: SiteDep, session: SessionDep) -> AlertSettings:
+    """Thresholds for `landslides_detected` (all must hold), e-mail recipients, job failures."""
+    settings = session.get(AlertSettings, site.id)
+    if settings is None:
+        settings = AlertSettings(site_id=site.id)
+        session.add(settings)
+    for field, value in body.model_dump().items():
+        setattr(settings, field, value)
+    settings.updated_at = utcnow()
+    session.commit()
+    return settings
+
+
+@router.post(
+    "/webhooks",
+    response_model=WebhookCreated,
+    status_code=status.HTTP_201_CREATED,
+    summary="Add a webhook; its signing secret is in this response only",
+)
+def create_webhook(body: WebhookCreate, site: SiteDep, session: SessionDep) -> WebhookCreated:
+    webhook = Webhook(
+        site_id=site.id, secret="whsec_" + secrets.token_urlsafe(32), **body.model_dump()
+    )
+    session.add(webhook)
+    session.commit()
+    return WebhookCreated(**WebhookOut.model_validate(webhook).model_dump(), secret=webhook.secret)
+
+
+@router.get("/webhooks", response_model=list[WebhookOut])
+def list_webhooks(site: SiteDep, session: SessionDep) -> list[Webhook]:
+    return list(
+        session.scalars(select(Webhook).where(Webhook.site_id == site.id).order_by(Webhook.id))
+    )
+
+
+@router.patch("/webhooks/{webhook_id}", response_model=WebhookOut)
+def update_webhook(
+    webhook_id: int, body: WebhookUpdate, site: SiteDep, session: SessionDep
+) -> Webhook:
+    webhook = owned_by_site(session, Webhook, site, webhook_id, "webhook")
+    for field, value in body.model_dump(exclude_unset=True).items():
+        if value is not None:
+            setattr(webhook, field, value)
+    session.commit()
+    return webhook
+
+
+@router.delete("/webhooks/{webhook_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_webhook(webhook_id: int, site: SiteDep, session: SessionDep) -> Response:
+    """Delete the webhook with its deliveries."""
+    session.delete(owned_by_site(session, Webhook, site, webhook_id, "webhook"))
+    session.commit()
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.get(
+    "/deliveries",
+    response_model=list[DeliveryOut],
+    summary="The delivery log: every webhook call and e-mail with its attempts, newest first",
+)
+def list_deliveries(
+    site: SiteDep,
+    session: SessionDep,
+    webhook_id: Annotated[int | None, Query()] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> list[Delivery]:
+    query = select(Delivery).where(Delivery.site_id == site.id)
+    if webhook_id is not None:
+        query = query.where(Delivery.webhook_id == webhook_id)
+    return list(session.scalars(query.order_by(Delivery.id.desc()).limit(limit)))

@@ -1,0 +1,93 @@
+"""Reports of a site: on demand or from schedules; PDF and HTML downloads."""
+
+import contextlib
+
+from fastapi import APIRouter, HTTPException, status
+from fastapi.responses import FileResponse
+from sqlalchemy import select
+
+from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.schemas_monitoring import ReportCreate, ReportOut
+from backend.db.models import Report, StoredFile
+from backend.services.reports import ReportRejected, request_report
+from worker.celery_app import BUILD_REPORT_TASK, QUEUE
+
+router = APIRouter(prefix="/sites/{site_id}/reports", tags=["reports"])
+API_PREFIX = "/api/v1"
+
+
+def report_out(report: Report) -> ReportOut:
+    base = f"{API_PREFIX}/sites/{report.site_id}/reports/{report.id}"
+    return ReportOut(
+        id=report.id,
+        site_id=report.site_id,
+        schedule_id=report.schedule_id,
+        scheduled_for=report.scheduled_for,
+        comparison_id=report.comparison_id,
+        trigger=report.trigger,
+        status=report.status,
+        summary=report.summary,
+        error=report.error,
+        created_at=report.created_at,
+        finished_at=report.finished_at,
+        pdf_url=f"{base}/pdf" if report.pdf_file_id else None,
+        html_url=f"{base}/html" if report.html_file_id else None,
+    )
+
+
+@router.post("", response_model=ReportOut, status_code=status.HTTP_202_ACCEPTED)
+def create_report(
+    body: ReportCreate, site: SiteDep, session: SessionDep, celery: CeleryDep
+) -> ReportOut:
+    """Queue a report of a comparison (default: the site's latest); answers at once."""
+    try:
+        report = request_report(session, site, body.comparison_id)
+    except ReportRejected as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    # If the broker is down, the tick's sweep of lost reports queues it later.
+    with contextlib.suppress(Exception):
+        celery.send_task(BUILD_REPORT_TASK, args=[report.id], queue=QUEUE)
+    return report_out(report)
+
+
+@router.get("", response_model=list[ReportOut])
+def list_reports(site: SiteDep, session: SessionDep) -> list[ReportOut]:
+    query = select(Report).where(Report.site_id == site.id).order_by(Report.id.desc())
+    return [report_out(r) for r in session.scalars(query)]
+
+
+@router.get("/{report_id}", response_model=ReportOut)
+def get_report(report_id: int, site: SiteDep, session: SessionDep) -> ReportOut:
+    return report_out(owned_by_site(session, Report, site, report_id, "report"))
+
+
+def _download(
+    session: SessionDep, storage: StorageDep, report: Report, file_id: int | None, kind: str
+) -> FileResponse:
+    stored = session.get(StoredFile, file_id) if file_id else None
+    if stored is None or not storage.absolute(stored.path).is_file():
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"report {report.id} has no {kind} (it is {report.status})"
+        )
+    return FileResponse(
+        storage.absolute(stored.path),
+        media_type=stored.media_type,
+        filename=f"slidewatch-report-{report.id}.{kind}",
+        content_disposition_type="inline",
+    )
+
+
+@router.get("/{report_id}/pdf", response_class=FileResponse, summary="The report as PDF")
+def report_pdf(
+    report_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> FileResponse:
+    report = owned_by_site(session, Report, site, report_id, "report")
+    return _download(session, storage, report, report.pdf_file_id, "pdf")
+
+
+@router.get("/{report_id}/html", response_class=FileResponse, summary="The report as HTML")
+def report_html(
+    report_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> FileResponse:
+    report = owned_by_site(session, Report, site, report_id, "report")
+    return _download(session, storage, report, report.html_file_id, "html")

@@ -1,0 +1,85 @@
+"""Monitoring schedules of a site: a report at every time a cron expression names."""
+
+from fastapi import APIRouter, HTTPException, Response, status
+from sqlalchemy import select
+
+from backend.api.deps import SessionDep, SiteDep, owned_by_site
+from backend.api.schemas_monitoring import ScheduleCreate, ScheduleOut, ScheduleUpdate
+from backend.db.models import Schedule
+from backend.services.schedules import ScheduleRejected, check, next_run, utcnow
+
+router = APIRouter(prefix="/sites/{site_id}/schedules", tags=["schedules"])
+
+
+def _checked(cron: str, timezone: str) -> None:
+    try:
+        check(cron, timezone)
+    except ScheduleRejected as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+
+
+def _first_run(body_next_run_at, cron: str, timezone: str):
+    if body_next_run_at is None:
+        return next_run(cron, timezone, utcnow())
+    if body_next_run_at.tzinfo is None:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            "next_run_at needs a time zone offset, e.g. 2026-06-01T06:00:00Z",
+        )
+    return body_next_run_at
+
+
+@router.post("", response_model=ScheduleOut, status_code=status.HTTP_201_CREATED)
+def create_schedule(body: ScheduleCreate, site: SiteDep, session: SessionDep) -> Schedule:
+    """Beat runs it: each run makes a report of the site's latest comparison."""
+    _checked(body.cron, body.timezone)
+    schedule = Schedule(
+        site_id=site.id,
+        name=body.name,
+        cron=body.cron,
+        timezone=body.timezone,
+        enabled=body.enabled,
+        next_run_at=_first_run(body.next_run_at, body.cron, body.timezone),
+    )
+    session.add(schedule)
+    session.commit()
+    return schedule
+
+
+@router.get("", response_model=list[ScheduleOut])
+def list_schedules(site: SiteDep, session: SessionDep) -> list[Schedule]:
+    query = select(Schedule).where(Schedule.site_id == site.id).order_by(Schedule.id)
+    return list(session.scalars(query))
+
+
+@router.get("/{schedule_id}", response_model=ScheduleOut)
+def get_schedule(schedule_id: int, site: SiteDep, session: SessionDep) -> Schedule:
+    return owned_by_site(session, Schedule, site, schedule_id, "schedule")
+
+
+@router.patch("/{schedule_id}", response_model=ScheduleOut)
+def update_schedule(
+    schedule_id: int, body: ScheduleUpdate, site: SiteDep, session: SessionDep
+) -> Schedule:
+    """A new cron or time zone moves the next run to the next time it names."""
+    schedule = owned_by_site(session, Schedule, site, schedule_id, "schedule")
+    changes = body.model_dump(exclude_unset=True)
+    cron = changes.get("cron") or schedule.cron
+    timezone = changes.get("timezone") or schedule.timezone
+    _checked(cron, timezone)
+    for field in ("name", "enabled"):
+        if changes.get(field) is not None:
+            setattr(schedule, field, changes[field])
+    if "cron" in changes or "timezone" in changes or changes.get("next_run_at"):
+        schedule.cron, schedule.timezone = cron, timezone
+        schedule.next_run_at = _first_run(changes.get("next_run_at"), cron, timezone)
+    session.commit()
+    return schedule
+
+
+@router.delete("/{schedule_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_schedule(schedule_id: int, site: SiteDep, session: SessionDep) -> Response:
+    """Delete the schedule; its reports stay."""
+    session.delete(owned_by_site(session, Schedule, site, schedule_id, "schedule"))
+    session.commit()
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

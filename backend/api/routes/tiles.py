@@ -1,0 +1,319 @@
+"""Web-map tiles (XYZ), TileJSON and WMTS capabilities of survey and comparison layers.
+
+URL templates (WebMercatorQuad, 256 px PNG):
+
+    /api/v1/sites/{site_id}/surveys/{survey_id}/tiles/{layer}/{z}/{x}/{y}.png
+    /api/v1/sites/{site_id}/comparisons/{comparison_id}/tiles/{layer}/{z}/{x}/{y}.png
+
+Layers: surveys `dsm`, `hillshade`; comparisons `dh`, `dsm`, `hillshade` (see
+backend/services/tiles.py). `rescale=min,max` and `colormap=name` override the style.
+The file read is always resolved from our own ids by `survey_layer` / `comparison_layer`
+(the path dependency); no path or URL is taken from the client.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+from urllib.parse import urlencode
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+from starlette.concurrency import run_in_threadpool
+
+from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.db.models import Comparison, JobState, Product, Site, Survey
+from backend.services.tiles import (
+    LAYERS,
+    BadStyle,
+    LayerSpec,
+    TileOutsideBounds,
+    WmtsLayer,
+    check_colormap,
+    layer_info,
+    parse_rescale,
+    render_tile,
+    wmts_capabilities,
+)
+
+router = APIRouter(prefix="/sites/{site_id}", tags=["map tiles"])
+
+API_PREFIX = "/api/v1"
+
+
+@dataclass(frozen=True)
+class LayerSource:
+    site_id: int
+    owner: str
+    owner_id: int
+    spec: LayerSpec
+    path: Path
+
+
+def _owner_row(session: SessionDep, site: Site, owner: str, owner_id: int):
+    if owner == "surveys":
+        return owned_by_site(session, Survey, site, owner_id, "survey")
+    return owned_by_site(session, Comparison, site, owner_id, "comparison")
+
+
+def _product_path(
+    session: SessionDep, storage: StorageDep, owner: str, owner_id: int, kind: str
+) -> Path | None:
+    column = Product.survey_id if owner == "surveys" else Product.comparison_id
+    product = session.query(Product).filter(column == owner_id, Product.kind == kind).one_or_none()
+    if product is None:
+        return None
+    path = storage.absolute(product.file.path)
+    return path if path.is_file() else None
+
+
+def _layer_source(
+    site: Site, owner: str, owner_id: int, layer: str, session: SessionDep, storage: StorageDep
+) -> LayerSource:
+    """The path dependency: our ids (and the token, through SiteDep) to a file we own."""
+    layers = LAYERS[owner]
+    if layer not in layers:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            f"unknown layer {layer!r} of {owner}; layers: {', '.join(layers)}",
+        )
+    _owner_row(session, site, owner, owner_id)
+    spec = layers[layer]
+    path = _product_path(session, storage, owner, owner_id, spec.product_kind)
+    if path is None:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            f"{owner[:-1]} {owner_id} has no {spec.product_kind} product yet",
+        )
+    return LayerSource(site.id, owner, owner_id, spec, path)
+
+
+def survey_layer(
+    site: SiteDep, survey_id: int, layer: str, session: SessionDep, storage: StorageDep
+) -> LayerSource:
+    return _layer_source(site, "surveys", survey_id, layer, session, storage)
+
+
+def comparison_layer(
+    site: SiteDep, comparison_id: int, layer: str, session: SessionDep, storage: StorageDep
+) -> LayerSource:
+    return _layer_source(site, "comparisons", comparison_id, layer, session, storage)
+
+
+def _auth_query(request: Request) -> str:
+    key = request.query_params.get("api_key")
+    return f"?{urlencode({'api_key': key})}" if key else ""
+
+
+def tile_template(base: str, source: LayerSource, query: str = "") -> str:
+    return (
+        f"{base}{API_PREFIX}/sites/{source.site_id}/{source.owner}/{source.owner_id}"
+        f"/tiles/{source.spec.name}/{{z}}/{{x}}/{{y}}.png{query}"
+    )
+
+
+async def _tile(
+    source: LayerSource, z: int, x: int, y: int, rescale: str | None, colormap: str | None
+) -> Response:
+    if not 0 <= z <= 24 or not (0 <= x < 2**z and 0 <= y < 2**z):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} does not exist")
+    try:
+        stretch = parse_rescale(rescale)
+        name = check_colormap(colormap)
+    except BadStyle as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from None
+    try:
+        png = await run_in_threadpool(render_tile, source.path, source.spec, z, x, y, stretch, name)
+    except TileOutsideBounds:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} is outside the layer"
+        ) from None
+    return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=60"})
+
+
+async def _tilejson(source: LayerSource, request: Request) -> dict:
+    info = await run_in_threadpool(layer_info, source.path)
+    base = str(request.base_url).rstrip("/")
+    west, south, east, north = info.bounds
+    return {
+        "tilejson": "3.0.0",
+        "name": f"{source.owner[:-1]} {source.owner_id} {source.spec.title}",
+        "scheme": "xyz",
+        "tiles": [tile_template(base, source, _auth_query(request))],
+        "minzoom": info.minzoom,
+        "maxzoom": info.maxzoom,
+        "bounds": [west, south, east, north],
+        "center": [(west + east) / 2, (south + north) / 2, max(info.minzoom, info.maxzoom - 2)],
+    }
+
+
+Rescale = Annotated[
+    str | None, Query(description="min,max of the colour stretch (default: from the data)")
+]
+Colormap = Annotated[
+    str | None, Query(description="rio-tiler colormap name, e.g. terrain, viridis, rdbu_r")
+]
+TILE_DOC = {
+    "response_class": Response,
+    "responses": {200: {"content": {"image/png": {}}}},
+}
+
+
+@router.get(
+    "/surveys/{survey_id}/tiles/{layer}/{z}/{x}/{y}.png",
+    summary="A map tile (WebMercatorQuad, 256 px PNG) of a survey layer: dsm, hillshade",
+    **TILE_DOC,
+)
+async def survey_tile(
+    source: Annotated[LayerSource, Depends(survey_layer)],
+    z: int,
+    x: int,
+    y: int,
+    rescale: Rescale = None,
+    colormap: Colormap = None,
+) -> Response:
+    return await _tile(source, z, x, y, rescale, colormap)
+
+
+@router.get(
+    "/comparisons/{comparison_id}/tiles/{layer}/{z}/{x}/{y}.png",
+    summary="A map tile (WebMercatorQuad, 256 px PNG) of a comparison layer: dh, dsm, hillshade",
+    **TILE_DOC,
+)
+async def comparison_tile(
+    source: Annotated[LayerSource, Depends(comparison_layer)],
+    z: int,
+    x: int,
+    y: int,
+    rescale: Rescale = None,
+    colormap: Colormap = None,
+) -> Response:
+    return await _tile(source, z, x, y, rescale, colormap)
+
+
+@router.get(
+    "/surveys/{survey_id}/tiles/{layer}/tilejson.json",
+    summary="TileJSON 3.0 of a survey layer: XYZ URL template, bounds, zoom levels",
+)
+async def survey_tilejson(
+    source: Annotated[LayerSource, Depends(survey_layer)], request: Request
+) -> dict:
+    return await _tilejson(source, request)
+
+
+@router.get(
+    "/comparisons/{comparison_id}/tiles/{layer}/tilejson.json",
+    summary="TileJSON 3.0 of a comparison layer: XYZ URL template, bounds, zoom levels",
+)
+async def comparison_tilejson(
+    source: Annotated[LayerSource, Depends(comparison_layer)], request: Request
+) -> dict:
+    return await _tilejson(source, request)
+
+
+def _layers_of(
+    session: SessionDep, storage: StorageDep, site: Site, owners: list[tuple[str, object]]
+) -> list[LayerSource]:
+    sources = []
+    for owner, row in owners:
+        for spec in LAYERS[owner].values():
+            path = _product_path(session, storage, owner, row.id, spec.product_kind)  # type: ignore[attr-defined]
+            if path is not None:
+                sources.append(LayerSource(site.id, owner, row.id, spec, path))  # type: ignore[attr-defined]
+    return sources
+
+
+def _wmts_response(
+    request: Request, title: str, owners_title: dict, sources: list[LayerSource]
+) -> Response:
+    base = str(request.base_url).rstrip("/")
+    query = _auth_query(request)
+    layers = []
+    for source in sources:
+        template = (
+            tile_template(base, source, query)
+            .replace("{z}", "{TileMatrix}")
+            .replace("{x}", "{TileCol}")
+            .replace("{y}", "{TileRow}")
+        )
+        owner_title = owners_title[(source.owner, source.owner_id)]
+        layers.append(
+            WmtsLayer(
+                identifier=f"{source.owner[:-1]}-{source.owner_id}-{source.spec.name}",
+                title=f"{owner_title}: {source.spec.title}",
+                abstract=f"{source.spec.title} of {owner_title}",
+                info=layer_info(source.path),
+                template=template,
+            )
+        )
+    document = wmts_capabilities(title, str(request.url), layers)
+    return Response(document, media_type="application/xml")
+
+
+def _survey_title(survey: Survey) -> str:
+    return f"survey {survey.id} ({survey.name}, {survey.captured_at:%Y-%m-%d})"
+
+
+def _comparison_title(comparison: Comparison) -> str:
+    return (
+        f"comparison {comparison.id} (surveys {comparison.pre_survey_id} → "
+        f"{comparison.post_survey_id})"
+    )
+
+
+WMTS_DOC = {
+    "summary": "WMTS 1.0.0 capabilities (RESTful): the layers as WebMercatorQuad tiles",
+    "response_class": Response,
+    "responses": {200: {"content": {"application/xml": {}}}},
+}
+
+
+@router.get("/wmts/WMTSCapabilities.xml", **WMTS_DOC)
+def site_wmts(
+    request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> Response:
+    """Every layer of every survey and finished comparison of the site."""
+    surveys = session.query(Survey).filter(Survey.site_id == site.id).order_by(Survey.id).all()
+    comparisons = (
+        session.query(Comparison)
+        .filter(Comparison.site_id == site.id, Comparison.status == JobState.succeeded)
+        .order_by(Comparison.id)
+        .all()
+    )
+    owners = [("surveys", s) for s in surveys] + [("comparisons", c) for c in comparisons]
+    titles = {("surveys", s.id): _survey_title(s) for s in surveys}
+    titles |= {("comparisons", c.id): _comparison_title(c) for c in comparisons}
+    sources = _layers_of(session, storage, site, owners)  # type: ignore[arg-type]
+    return _wmts_response(request, f"slidewatch: {site.name}", titles, sources)
+
+
+def _owner_wmts(
+    request: Request,
+    site: Site,
+    owner: str,
+    owner_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+) -> Response:
+    row = _owner_row(session, site, owner, owner_id)
+    title = _survey_title(row) if owner == "surveys" else _comparison_title(row)
+    sources = _layers_of(session, storage, site, [(owner, row)])
+    return _wmts_response(
+        request, f"slidewatch: {site.name}, {title}", {(owner, owner_id): title}, sources
+    )
+
+
+@router.get("/surveys/{survey_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
+def survey_wmts(
+    request: Request, site: SiteDep, survey_id: int, session: SessionDep, storage: StorageDep
+) -> Response:
+    """The layers of one survey."""
+    return _owner_wmts(request, site, "surveys", survey_id, session, storage)
+
+
+@router.get("/comparisons/{comparison_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
+def comparison_wmts(
+    request: Request, site: SiteDep, comparison_id: int, session: SessionDep, storage: StorageDep
+) -> Response:
+    """The layers of one comparison."""
+    return _owner_wmts(request, site, "comparisons", comparison_id, session, storage)

@@ -1,0 +1,172 @@
+"""Request and response bodies of alerts, webhooks, schedules and reports."""
+
+from datetime import datetime
+from typing import Any
+from urllib.parse import urlparse
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from backend.db.models import DeliveryStatus, JobState
+from backend.services.alerts import EVENTS
+
+
+class ORMModel(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+
+def check_events(values: list[str] | None) -> list[str] | None:
+    if values is None:
+        return values
+    unknown = sorted(set(values) - set(EVENTS))
+    if unknown:
+        raise ValueError(f"unknown events {unknown}; events: {', '.join(EVENTS)}")
+    if not values:
+        raise ValueError("a webhook needs at least one event")
+    return values
+
+
+class AlertSettingsIn(BaseModel):
+    min_area_m2: float = Field(default=0.0, ge=0, description="Smallest landslide that alerts.")
+    min_volume_m3: float = Field(
+        default=0.0, ge=0, description="Least material moved (loss + gain) that alerts."
+    )
+    min_score: float = Field(default=0.0, ge=0, le=1, description="Least detection score.")
+    email_recipients: list[str] = Field(default_factory=list, max_length=50)
+    notify_job_failures: bool = True
+
+    @field_validator("email_recipients")
+    @classmethod
+    def _addresses(cls, values: list[str]) -> list[str]:
+        for value in values:
+            local, _, domain = value.partition("@")
+            if not local or "." not in domain or any(c in value for c in " ,;<>"):
+                raise ValueError(f"{value!r} is not an e-mail address")
+        return values
+
+
+class AlertSettingsOut(AlertSettingsIn, ORMModel):
+    site_id: int
+
+
+class WebhookCreate(BaseModel):
+    url: str = Field(max_length=2048, description="http(s) URL that receives POSTed JSON.")
+    events: list[str] = Field(
+        default_factory=lambda: list(EVENTS),
+        description=f"Events to receive: {', '.join(EVENTS)}.",
+    )
+    description: str = Field(default="", max_length=200)
+    active: bool = True
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, value: str) -> str:
+        parsed = urlparse(value)
+        if parsed.scheme not in ("http", "https") or not parsed.netloc:
+            raise ValueError(f"{value!r} is not an http(s) URL")
+        return value
+
+    _events = field_validator("events")(check_events)
+
+
+class WebhookUpdate(BaseModel):
+    active: bool | None = None
+    events: list[str] | None = None
+    description: str | None = Field(default=None, max_length=200)
+
+    _events = field_validator("events")(check_events)
+
+
+class WebhookOut(ORMModel):
+    id: int
+    site_id: int
+    url: str
+    events: list[str]
+    description: str
+    active: bool
+    created_at: datetime
+
+
+class WebhookCreated(WebhookOut):
+    secret: str = Field(
+        description="Signs every call (HMAC-SHA256); shown only now. See docs/alerts.md."
+    )
+
+
+class DeliveryAttemptOut(ORMModel):
+    attempt: int
+    at: datetime
+    status_code: int | None
+    error: str | None
+    duration_ms: float
+
+
+class DeliveryOut(ORMModel):
+    id: int
+    channel: str
+    webhook_id: int | None
+    recipients: list[str] | None
+    event: str
+    status: DeliveryStatus
+    attempts: int
+    next_attempt_at: datetime | None
+    delivered_at: datetime | None
+    last_error: str | None
+    created_at: datetime
+    payload: dict[str, Any]
+    attempt_log: list[DeliveryAttemptOut]
+
+
+class ScheduleCreate(BaseModel):
+    cron: str = Field(
+        max_length=120,
+        description="Five-field cron expression, e.g. '0 6 * * 1' (Mondays 06:00).",
+    )
+    timezone: str = Field(default="UTC", max_length=64, description="IANA time zone of cron.")
+    name: str = Field(default="", max_length=200)
+    enabled: bool = True
+    next_run_at: datetime | None = Field(
+        default=None,
+        description="When to run first (then as cron says); default: the next cron time.",
+    )
+
+
+class ScheduleUpdate(BaseModel):
+    cron: str | None = Field(default=None, max_length=120)
+    timezone: str | None = Field(default=None, max_length=64)
+    name: str | None = Field(default=None, max_length=200)
+    enabled: bool | None = None
+    next_run_at: datetime | None = None
+
+
+class ScheduleOut(ORMModel):
+    id: int
+    site_id: int
+    name: str
+    cron: str
+    timezone: str
+    enabled: bool
+    next_run_at: datetime
+    last_run_at: datetime | None
+    created_at: datetime
+
+
+class ReportCreate(BaseModel):
+    comparison_id: int | None = Field(
+        default=None, description="The comparison to report on; default: the site's latest."
+    )
+
+
+class ReportOut(BaseModel):
+    id: int
+    site_id: int
+    schedule_id: int | None
+    scheduled_for: datetime | None
+    comparison_id: int | None
+    trigger: str
+    status: JobState
+    summary: dict[str, Any] | None
+    error: str | None
+    created_at: datetime
+    finished_at: datetime | None
+    pdf_url: str | None
+    html_url: str | None

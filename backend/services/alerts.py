@@ -1,0 +1,563 @@
+"""Alerts: webhook calls and e-mails when landslides are found, a job fails or a report is
+ready, each delivered by a Celery task with retries and every attempt logged.
+
+Events and what triggers them:
+
+    landslides_detected  a comparison succeeded with detections above the site's thresholds
+    job_failed           any job of the site failed for good
+    report_ready         a report of the site was generated
+
+Thresholds (AlertSettings, per site, all must hold for a detection to count):
+`area_m2 >= min_area_m2`, `volume_loss_m3 + volume_gain_m3 >= min_volume_m3` (material
+moved) and `score >= min_score`.
+
+An event makes one Delivery row per target (each active webhook that subscribed to it, and
+the site's e-mail recipients when SMTP is configured) in the caller's transaction; a
+unique key per event and target means an event is never delivered twice to one target.
+The tasks are queued after that transaction commits. `attempt_delivery` makes one attempt:
+it claims the attempt with a conditional UPDATE (so two copies of a task cannot both send),
+sends without holding a database transaction, and records the outcome.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import smtplib
+import ssl
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from email.message import EmailMessage
+from functools import lru_cache
+from typing import Any
+
+import httpx
+from celery import Celery
+from sqlalchemy import event, select, update
+from sqlalchemy.orm import Session
+
+from backend.config import Settings, get_settings
+from backend.db.models import (
+    AlertSettings,
+    Comparison,
+    Delivery,
+    DeliveryAttempt,
+    DeliveryStatus,
+    Detection,
+    Job,
+    Report,
+    Site,
+    StoredFile,
+    Webhook,
+)
+from backend.signing import SIGNATURE_HEADER, TIMESTAMP_HEADER, sign
+from backend.storage import LocalStorage
+
+log = logging.getLogger(__name__)
+
+EVENTS = ("landslides_detected", "job_failed", "report_ready")
+MAX_BACKOFF_S = 3600.0
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+def _aware(moment: datetime | None) -> datetime | None:
+    if moment is None:
+        return None
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+def _iso(moment: datetime | None) -> str | None:
+    moment = _aware(moment)
+    return moment.isoformat().replace("+00:00", "Z") if moment else None
+
+
+def alert_settings(session: Session, site_id: int) -> AlertSettings:
+    """The site's settings, or the defaults (not stored) where it has none."""
+    found = session.get(AlertSettings, site_id)
+    if found is not None:
+        return found
+    return AlertSettings(
+        site_id=site_id,
+        min_area_m2=0.0,
+        min_volume_m3=0.0,
+        min_score=0.0,
+        email_recipients=[],
+        notify_job_failures=True,
+    )
+
+
+def above_thresholds(rules: AlertSettings, detections: list[Detection]) -> list[Detection]:
+    return [
+        d
+        for d in detections
+        if d.area_m2 >= rules.min_area_m2
+        and d.volume_loss_m3 + d.volume_gain_m3 >= rules.min_volume_m3
+        and d.score >= rules.min_score
+    ]
+
+
+# --- events -----------------------------------------------------------------------------
+
+
+def _links(settings: Settings, site_id: int, **paths: str) -> dict[str, str]:
+    base = settings.resolved_public_url
+    return {name: f"{base}{path}" for name, path in paths.items()}
+
+
+def detection_summary(detection: Detection) -> dict[str, Any]:
+    from shapely.geometry import shape
+
+    centroid = shape(detection.geometry).centroid
+    return {
+        "id": detection.id,
+        "area_m2": round(detection.area_m2, 2),
+        "volume_loss_m3": round(detection.volume_loss_m3, 2),
+        "volume_gain_m3": round(detection.volume_gain_m3, 2),
+        "max_abs_dh_m": round(detection.max_abs_dh_m, 3),
+        "score": round(detection.score, 3),
+        "centroid": {"lon": round(centroid.x, 6), "lat": round(centroid.y, 6)},
+    }
+
+
+def comparison_succeeded(session: Session, comparison: Comparison) -> list[Delivery]:
+    """Alert when the comparison found landslides above the site's thresholds."""
+    rules = alert_settings(session, comparison.site_id)
+    found = above_thresholds(rules, list(comparison.detections))
+    if not found:
+        return []
+    settings = get_settings()
+    site = session.get(Site, comparison.site_id)
+    api = f"/api/v1/sites/{comparison.site_id}/comparisons/{comparison.id}"
+    payload = {
+        "event": "landslides_detected",
+        "site": {"id": site.id, "name": site.name},
+        "comparison": {
+            "id": comparison.id,
+            "pre_survey_id": comparison.pre_survey_id,
+            "post_survey_id": comparison.post_survey_id,
+            "finished_at": _iso(comparison.finished_at),
+        },
+        "thresholds": {
+            "min_area_m2": rules.min_area_m2,
+            "min_volume_m3": rules.min_volume_m3,
+            "min_score": rules.min_score,
+        },
+        "detections": [detection_summary(d) for d in found],
+        "links": _links(
+            settings,
+            site.id,
+            comparison=api,
+            detections=f"{api}/detections",
+            features=f"/ogc/collections/detections/items?comparison_id={comparison.id}",
+        ),
+    }
+    subject = (
+        f"[slidewatch] {site.name}: {len(found)} landslide"
+        f"{'s' if len(found) != 1 else ''} detected (comparison {comparison.id})"
+    )
+    return create_deliveries(
+        session, site, "landslides_detected", f"comparison:{comparison.id}", payload, subject
+    )
+
+
+def job_failed(session: Session, job: Job) -> list[Delivery]:
+    rules = alert_settings(session, job.site_id)
+    if not rules.notify_job_failures:
+        return []
+    site = session.get(Site, job.site_id)
+    if site is None:
+        return []
+    settings = get_settings()
+    failed_at = _iso(job.finished_at) or _iso(utcnow())
+    payload = {
+        "event": "job_failed",
+        "site": {"id": site.id, "name": site.name},
+        "job": {
+            "id": job.id,
+            "kind": job.kind,
+            "comparison_id": job.comparison_id,
+            "survey_id": job.survey_id,
+            "error": job.error,
+            "failed_at": failed_at,
+        },
+        "links": _links(settings, site.id, job=f"/api/v1/sites/{site.id}/jobs/{job.id}"),
+    }
+    subject = f"[slidewatch] {site.name}: {job.kind} job {job.id} failed"
+    # A job retried and failed again is a new event: the failure time is part of the key.
+    return create_deliveries(
+        session, site, "job_failed", f"job:{job.id}:{failed_at}", payload, subject
+    )
+
+
+def report_ready(session: Session, report: Report) -> list[Delivery]:
+    site = session.get(Site, report.site_id)
+    settings = get_settings()
+    api = f"/api/v1/sites/{site.id}/reports/{report.id}"
+    summary = report.summary or {}
+    payload = {
+        "event": "report_ready",
+        "site": {"id": site.id, "name": site.name},
+        "report": {
+            "id": report.id,
+            "trigger": report.trigger,
+            "schedule_id": report.schedule_id,
+            "comparison_id": report.comparison_id,
+            "detections": summary.get("detections"),
+            "total_area_m2": summary.get("total_area_m2"),
+            "created_at": _iso(report.created_at),
+        },
+        "links": _links(settings, site.id, report=api, pdf=f"{api}/pdf", html=f"{api}/html"),
+    }
+    subject = f"[slidewatch] {site.name}: report {report.id}"
+    return create_deliveries(
+        session, site, "report_ready", f"report:{report.id}", payload, subject, report=report
+    )
+
+
+def create_deliveries(
+    session: Session,
+    site: Site,
+    event_name: str,
+    event_key: str,
+    payload: dict[str, Any],
+    subject: str,
+    report: Report | None = None,
+) -> list[Delivery]:
+    """One delivery per target that wants this event; queued once the session commits."""
+    settings = get_settings()
+    created: list[Delivery] = []
+    webhooks = session.scalars(
+        select(Webhook).where(Webhook.site_id == site.id, Webhook.active.is_(True))
+    )
+    targets: list[tuple[str, Webhook | None]] = [
+        ("webhook", w) for w in webhooks if event_name in (w.events or EVENTS)
+    ]
+    rules = alert_settings(session, site.id)
+    if rules.email_recipients:
+        if settings.smtp_host:
+            targets.append(("email", None))
+        else:
+            log.warning("site %s has e-mail recipients but SLIDEWATCH_SMTP_HOST is unset", site.id)
+    for channel, webhook in targets:
+        key = f"{event_key}:{event_name}:{channel}:{webhook.id if webhook else 'email'}"
+        if session.scalar(select(Delivery.id).where(Delivery.dedupe_key == key)) is not None:
+            continue
+        delivery = Delivery(
+            site_id=site.id,
+            channel=channel,
+            webhook_id=webhook.id if webhook else None,
+            recipients=list(rules.email_recipients) if channel == "email" else None,
+            report_id=report.id if report is not None else None,
+            event=event_name,
+            dedupe_key=key,
+            payload={**payload, "subject": subject} if channel == "email" else payload,
+            status=DeliveryStatus.pending,
+            attempts=0,
+            next_attempt_at=utcnow(),
+        )
+        session.add(delivery)
+        created.append(delivery)
+    if created:
+        session.flush()
+        queue_after_commit(session, [d.id for d in created])
+    return created
+
+
+def guarded(hook, session: Session, *args: Any) -> list[Delivery]:
+    """Run an event hook in a savepoint: a broken alert never undoes the job's own update."""
+    try:
+        with session.begin_nested():
+            return hook(session, *args)
+    except Exception:
+        log.exception("could not create the alerts of %s", hook.__name__)
+        return []
+
+
+# --- queueing ---------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=4)
+def _celery(broker_url: str) -> Celery:
+    from worker.celery_app import create_celery
+
+    return create_celery(get_settings())
+
+
+def send_delivery_task(delivery_id: int, countdown: float | None = None) -> None:
+    from worker.celery_app import DELIVER_TASK, QUEUE
+
+    celery = _celery(get_settings().resolved_broker_url)
+    celery.send_task(DELIVER_TASK, args=[delivery_id], queue=QUEUE, countdown=countdown)
+
+
+def queue_after_commit(session: Session, delivery_ids: list[int]) -> None:
+    """Queue the deliveries' tasks once `session` commits (never for a rolled-back one)."""
+    pending: list[int] = session.info.setdefault("deliveries_to_queue", [])
+    if not session.info.get("deliveries_listener"):
+        event.listen(session, "after_commit", _queue_pending)
+        event.listen(session, "after_rollback", _forget_pending)
+        session.info["deliveries_listener"] = True
+    pending.extend(delivery_ids)
+
+
+def _queue_pending(session: Session) -> None:
+    ids = session.info.pop("deliveries_to_queue", [])
+    for delivery_id in ids:
+        try:
+            send_delivery_task(delivery_id)
+        except Exception:  # the sweep of overdue deliveries queues it again
+            log.warning("could not queue delivery %s", delivery_id, exc_info=True)
+
+
+def _forget_pending(session: Session) -> None:
+    session.info.pop("deliveries_to_queue", None)
+
+
+def overdue_deliveries(session: Session, now: datetime | None = None) -> list[int]:
+    """Deliveries whose next attempt is well past due: their message or worker was lost."""
+    now = now or utcnow()
+    grace = timedelta(seconds=max(60.0, get_settings().webhook_timeout_s * 3))
+    return list(
+        session.scalars(
+            select(Delivery.id).where(
+                Delivery.status.in_([DeliveryStatus.pending, DeliveryStatus.retrying]),
+                Delivery.next_attempt_at < now - grace,
+            )
+        )
+    )
+
+
+# --- one attempt ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AttemptOutcome:
+    delivered: bool
+    retry_in_s: float | None  # None: nothing more to do (delivered, given up or not ours)
+    status_code: int | None = None
+    error: str | None = None
+
+
+def backoff_s(settings: Settings, attempt: int) -> float:
+    return min(settings.delivery_retry_base_s * 2 ** (attempt - 1), MAX_BACKOFF_S)
+
+
+def _claim_attempt(session: Session, delivery: Delivery, settings: Settings) -> int | None:
+    """Take attempt n+1 with a conditional UPDATE; None if another worker took it."""
+    attempt = delivery.attempts + 1
+    # While it is in flight, the sweep must not think the delivery is lost.
+    in_flight_until = utcnow() + timedelta(seconds=settings.webhook_timeout_s + 30)
+    claimed = session.execute(
+        update(Delivery)
+        .where(
+            Delivery.id == delivery.id,
+            Delivery.attempts == delivery.attempts,
+            Delivery.status.in_([DeliveryStatus.pending, DeliveryStatus.retrying]),
+        )
+        .values(attempts=attempt, next_attempt_at=in_flight_until)
+        .execution_options(synchronize_session=False)
+    )
+    return attempt if claimed.rowcount == 1 else None
+
+
+def attempt_delivery(delivery_id: int, session_factory, storage: LocalStorage) -> AttemptOutcome:
+    """Make the next attempt of a delivery and record it; say whether to retry and when."""
+    settings = get_settings()
+    with session_factory() as session:
+        delivery = session.get(Delivery, delivery_id)
+        if delivery is None or delivery.status in (DeliveryStatus.delivered, DeliveryStatus.failed):
+            return AttemptOutcome(delivery is not None, None)
+        attempt = _claim_attempt(session, delivery, settings)
+        session.commit()
+        if attempt is None:
+            return AttemptOutcome(False, None)
+        webhook = session.get(Webhook, delivery.webhook_id) if delivery.webhook_id else None
+        try:
+            request: _Request | None = _prepare(session, storage, delivery, webhook)
+        except Exception as exc:  # recorded as a failed attempt, like a refused call
+            request, prepare_error = None, f"could not prepare the message: {exc}"
+
+    started = time.perf_counter()
+    if request is None:
+        status_code, error = None, prepare_error
+    else:
+        status_code, error = _send(settings, request)
+    duration_ms = (time.perf_counter() - started) * 1000
+    delivered = error is None
+
+    give_up = not delivered and attempt >= settings.delivery_max_attempts
+    retry_in = None if delivered or give_up else backoff_s(settings, attempt)
+    with session_factory() as session:
+        delivery = session.get(Delivery, delivery_id)
+        session.add(
+            DeliveryAttempt(
+                delivery_id=delivery_id,
+                attempt=attempt,
+                at=utcnow(),
+                status_code=status_code,
+                error=error,
+                duration_ms=round(duration_ms, 1),
+            )
+        )
+        if delivered:
+            delivery.status = DeliveryStatus.delivered
+            delivery.delivered_at = utcnow()
+            delivery.next_attempt_at = None
+            delivery.last_error = None
+        elif give_up:
+            delivery.status = DeliveryStatus.failed
+            delivery.next_attempt_at = None
+            delivery.last_error = f"gave up after {attempt} attempts: {error}"
+        else:
+            delivery.status = DeliveryStatus.retrying
+            delivery.next_attempt_at = utcnow() + timedelta(seconds=retry_in or 0)
+            delivery.last_error = error
+        session.commit()
+    if not delivered:
+        log.warning("delivery %s attempt %s failed: %s", delivery_id, attempt, error)
+    return AttemptOutcome(delivered, retry_in, status_code, error)
+
+
+@dataclass(frozen=True)
+class _Request:
+    channel: str
+    delivery_id: int
+    event: str
+    body: bytes
+    url: str | None = None
+    secret: str | None = None
+    recipients: tuple[str, ...] = ()
+    subject: str = ""
+    text: str = ""
+    attachment: tuple[str, bytes] | None = None
+
+
+def _prepare(
+    session: Session, storage: LocalStorage, delivery: Delivery, webhook: Webhook | None
+) -> _Request:
+    payload = dict(delivery.payload)
+    if delivery.channel == "webhook":
+        if webhook is None:
+            raise LookupError(f"webhook of delivery {delivery.id} is gone")
+        body = json.dumps(payload, separators=(",", ":"), ensure_ascii=False).encode()
+        return _Request(
+            "webhook", delivery.id, delivery.event, body, url=webhook.url, secret=webhook.secret
+        )
+    subject = payload.pop("subject", f"[slidewatch] {delivery.event}")
+    attachment = None
+    if delivery.report_id is not None:
+        report = session.get(Report, delivery.report_id)
+        pdf = session.get(StoredFile, report.pdf_file_id) if report and report.pdf_file_id else None
+        if pdf is not None:
+            path = storage.absolute(pdf.path)
+            attachment = (f"slidewatch-report-{report.id}.pdf", path.read_bytes())
+    return _Request(
+        "email",
+        delivery.id,
+        delivery.event,
+        b"",
+        recipients=tuple(delivery.recipients or ()),
+        subject=subject,
+        text=email_text(payload),
+        attachment=attachment,
+    )
+
+
+def _send(settings: Settings, request: _Request) -> tuple[int | None, str | None]:
+    """Send; return (HTTP status or None, error or None)."""
+    if request.channel == "webhook":
+        timestamp = int(time.time())
+        headers = {
+            "Content-Type": "application/json",
+            "User-Agent": "slidewatch-webhooks/1",
+            "X-Slidewatch-Event": request.event,
+            "X-Slidewatch-Delivery": str(request.delivery_id),
+            TIMESTAMP_HEADER: str(timestamp),
+            SIGNATURE_HEADER: sign(request.secret or "", timestamp, request.body),
+        }
+        try:
+            response = httpx.post(
+                request.url or "",
+                content=request.body,
+                headers=headers,
+                timeout=settings.webhook_timeout_s,
+                follow_redirects=False,
+            )
+        except httpx.HTTPError as exc:
+            return None, f"{type(exc).__name__}: {exc}"
+        if 200 <= response.status_code < 300:
+            return response.status_code, None
+        return response.status_code, f"HTTP {response.status_code}: {response.text[:200]}"
+    try:
+        send_email(settings, request.recipients, request.subject, request.text, request.attachment)
+    except (OSError, smtplib.SMTPException) as exc:
+        code = getattr(exc, "smtp_code", None)
+        return code, f"{type(exc).__name__}: {exc}"
+    return None, None
+
+
+def email_text(payload: dict[str, Any]) -> str:
+    """A plain-text e-mail body from an event payload."""
+    site = payload.get("site", {})
+    lines = [f"Site: {site.get('name')} (id {site.get('id')})", ""]
+    if payload["event"] == "landslides_detected":
+        lines.append(f"Comparison {payload['comparison']['id']} found these landslides:")
+        lines.append("")
+        for d in payload["detections"]:
+            lines.append(
+                f"  #{d['id']}: area {d['area_m2']:.1f} m², loss {d['volume_loss_m3']:.1f} m³, "
+                f"gain {d['volume_gain_m3']:.1f} m³, max |Δh| {d['max_abs_dh_m']:.2f} m, "
+                f"score {d['score']:.2f}, at {d['centroid']['lat']:.6f}, "
+                f"{d['centroid']['lon']:.6f}"
+            )
+    elif payload["event"] == "job_failed":
+        job = payload["job"]
+        lines.append(f"The {job['kind']} job {job['id']} failed: {job['error']}")
+    elif payload["event"] == "report_ready":
+        report = payload["report"]
+        lines.append(
+            f"Report {report['id']} is ready ({report['detections']} landslides); "
+            "the PDF is attached."
+        )
+    lines.append("")
+    for name, url in payload.get("links", {}).items():
+        lines.append(f"{name}: {url}")
+    return "\n".join(lines) + "\n"
+
+
+def send_email(
+    settings: Settings,
+    recipients: tuple[str, ...] | list[str],
+    subject: str,
+    text: str,
+    attachment: tuple[str, bytes] | None = None,
+) -> None:
+    message = EmailMessage()
+    message["From"] = settings.smtp_from
+    message["To"] = ", ".join(recipients)
+    message["Subject"] = subject
+    message.set_content(text)
+    if attachment is not None:
+        name, data = attachment
+        message.add_attachment(data, maintype="application", subtype="pdf", filename=name)
+    host, port, timeout = (
+        settings.smtp_host or "localhost",
+        settings.smtp_port,
+        settings.smtp_timeout_s,
+    )
+    if settings.smtp_security == "ssl":
+        smtp: smtplib.SMTP = smtplib.SMTP_SSL(
+            host, port, timeout=timeout, context=ssl.create_default_context()
+        )
+    else:
+        smtp = smtplib.SMTP(host, port, timeout=timeout)
+    with smtp:
+        if settings.smtp_security == "starttls":
+            smtp.starttls(context=ssl.create_default_context())
+        if settings.smtp_username:
+            smtp.login(settings.smtp_username, settings.smtp_password or "")
+        smtp.send_message(message)
