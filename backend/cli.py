@@ -149,13 +149,10 @@ def run() -> None:
 
 def _register_pipeline_commands() -> None:
     from worker.commands.detect import detect
+    from worker.commands.simulate import simulate_command
 
     main.add_command(detect)
-    try:
-        from worker.commands.simulate import simulate
-    except ImportError:  # the simulator is optional at import time of a partial checkout
-        return
-    main.add_command(simulate)
+    main.add_command(simulate_command)
 
 
 _register_pipeline_commands()

@@ -1,0 +1,802 @@
+"""`simulate_scenario`: build a scenario's history and write every survey and its truth.
+
+For each step: the truth (DSM, bare-earth DEM, orthoimage, landslide masks, event
+labels) as GeoTIFF in the scenario's UTM CRS; for each survey flight of the step: the
+MP4 video, its DJI SRT, an AirData CSV flight log, the true camera trajectory, and
+optionally a JPEG image set with EXIF/XMP. Then the registration-error patterns of the
+paper on one step's DSM, and `manifest.json` describing all of it.
+"""
+
+from __future__ import annotations
+
+import platform
+import tempfile
+import time
+import zlib
+from dataclasses import asdict, dataclass, field, replace
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from worker.pipeline.progress import ProgressFn, no_progress
+from worker.simulator.camera import CameraModel
+from worker.simulator.evolution import MASK_CLASSES, advance
+from worker.simulator.flight_log import LogRecord, SrtOptions, write_airdata_csv, write_dji_srt
+from worker.simulator.flight_plan import Flight, build_flight
+from worker.simulator.frames import FramePool, RenderRun, default_workers
+from worker.simulator.georef import SceneFrame
+from worker.simulator.gnss import (
+    GnssErrorModel,
+    ImuErrorModel,
+    simulate_attitude_errors,
+    simulate_gnss,
+)
+from worker.simulator.image_set import ImageMeta, write_dji_jpeg
+from worker.simulator.manifest import FORMAT, Manifest
+from worker.simulator.registration import registration_patterns, shift_dsm
+from worker.simulator.render import RenderOptions
+from worker.simulator.scenario import get_scenario
+from worker.simulator.terrain import Scene
+from worker.simulator.texture import (
+    Exposure,
+    Sun,
+    TextureBank,
+    disturbed_albedo,
+    ground_albedo,
+    orthoimage,
+    shading,
+    tree_albedo,
+)
+from worker.simulator.truth_io import (
+    DSM_NODATA,
+    MASK_NODATA,
+    write_raster,
+    write_trajectory_csv,
+)
+
+SURVEY_MODES = ("video", "images", "both", "none")
+
+
+@dataclass(frozen=True)
+class SimulationOptions:
+    """Everything `simulate_scenario` can vary. None means the scenario's default."""
+
+    seed: int = 1
+    steps: int | None = None
+    survey: str = "video"
+    """video, images (JPEG set instead of video), both, or none (truth only)."""
+    video_seconds: float | None = None
+    """Length of each survey video; the plan is flown at the speed that fits."""
+    width: int = 640
+    height: int = 360
+    fps: float = 30.0
+    flight: str | None = None
+    altitude_m: float | None = None
+    speed_m_s: float | None = None
+    flights_per_step: int = 1
+    gnss: str = "standalone"
+    log_time_offset_s: float = 0.0
+    """The logged states in the CSV are those of `offset` seconds earlier than the
+    CSV's own time stamps and isVideo flags say (positive: the log lags the video)."""
+    log_rate_hz: float = 10.0
+    csv_units: str = "feet"
+    srt_decimals: int = 6
+    srt_gimbal: bool = False
+    image_width: int = 1368
+    image_height: int = 912
+    image_overlap: float = 0.75
+    write_ortho: bool = True
+    registration: bool = True
+    workers: int = 0
+    """Rendering processes; 0: one per core, at most 2."""
+    video_codec: str = "auto"
+    crf: int = 20
+    render: RenderOptions = field(default_factory=RenderOptions)
+    first_local_time: str = "2024-05-13T10:00:00"
+    days_between_steps: int = 1
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["render"] = asdict(self.render)
+        return d
+
+
+def rng_for(seed: int, *key) -> np.random.Generator:
+    """An independent, reproducible random stream for a named part of the simulation."""
+    words = [zlib.crc32(str(k).encode()) for k in key]
+    return np.random.default_rng(np.random.SeedSequence([int(seed), *words]))
+
+
+def simulate_scenario(
+    scenario: str,
+    out_dir: Path,
+    options: SimulationOptions | None = None,
+    progress: ProgressFn = no_progress,
+) -> Manifest:
+    """Simulate `scenario` ('paper-mounds' or 'hillslope') into `out_dir`."""
+    opts = options or SimulationOptions()
+    spec = get_scenario(scenario)
+    if opts.survey not in SURVEY_MODES:
+        raise ValueError(f"survey must be one of {SURVEY_MODES}")
+    n_steps = opts.steps or spec.default_steps
+    if n_steps < 1:
+        raise ValueError("steps must be at least 1")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+
+    t0 = time.perf_counter()
+    frame = SceneFrame.at_lonlat(spec.lon, spec.lat, spec.crs)
+    scene = spec.build(rng_for(opts.seed, "scene"))
+    grid = scene.grid
+    bank = TextureBank.make(grid.shape, grid.res, rng_for(opts.seed, "texture"))
+    base_albedo = ground_albedo(scene.material, bank, grid.res)
+    timings["scene"] = time.perf_counter() - t0
+
+    camera = CameraModel.phantom4pro(opts.width, opts.height, kind="video")
+    still = CameraModel.phantom4pro(opts.image_width, opts.image_height, kind="still")
+    plan = spec.flight_plan(opts.flight, opts.altitude_m, opts.speed_m_s, opts.video_seconds)
+    gnss_model = GnssErrorModel.named(opts.gnss)
+    imu_model = ImuErrorModel()
+    tz = timedelta(hours=spec.local_utc_offset_h)
+    first_local = datetime.fromisoformat(opts.first_local_time)
+
+    checkpoints = []
+    for cp in scene.features.get("checkpoints", []):
+        e, n = frame.to_world(cp["x"], cp["y"])
+        lon, lat = frame.lonlat(cp["x"], cp["y"])
+        checkpoints.append(
+            {
+                "name": cp["name"],
+                "e": round(float(e), 4),
+                "n": round(float(n), 4),
+                "u": round(cp["z"], 4),
+                "lat": round(float(lat), 9),
+                "lon": round(float(lon), 9),
+                "x_local": cp["x"],
+                "y_local": cp["y"],
+                "kind": "0.6 m black-and-white target",
+            }
+        )
+    home_e, home_n = frame.to_world(*spec.home_xy)
+    scene_info = {k: v for k, v in scene.features.items() if k != "checkpoints"}
+    scene_info["checkpoints"] = checkpoints
+    scene_info["home"] = {
+        "e": float(home_e),
+        "n": float(home_n),
+        "x_local": spec.home_xy[0],
+        "y_local": spec.home_xy[1],
+    }
+    scene_info["trees_at_step1"] = scene.trees.counts()
+    data: dict = {
+        "format": FORMAT,
+        "scenario": spec.name,
+        "seed": opts.seed,
+        "created_by": "slidewatch worker.simulator",
+        "scenario_info": spec.to_dict(),
+        "options": opts.to_dict(),
+        "crs": frame.crs,
+        "frame": frame.to_dict(),
+        "grid": grid.to_dict(frame),
+        "scene": scene_info,
+        "camera": camera.to_dict(),
+        "image_camera": still.to_dict(),
+        "gnss": gnss_model.to_dict(),
+        "imu": imu_model.to_dict(),
+        "mask_classes": MASK_CLASSES,
+        "conventions": {
+            "local_frame": "x = e - frame.origin_e, y = n - frame.origin_n, z = u",
+            "attitude": "DJI: yaw clockwise from north, pitch 0 horizon / -90 nadir, roll "
+            "positive right side down; q* in trajectories rotate camera (x right, y down, z "
+            "forward) into world (e, n, u)",
+            "times": "video clock: t = 0 at the first frame; SRT local time without zone "
+            f"(UTC{spec.local_utc_offset_h:+.0f}); CSV datetime(utc)",
+            "airdata_speeds": "xSpeed north, ySpeed east, zSpeed down",
+        },
+        "steps": [],
+        "registration": [],
+    }
+    manifest = Manifest(root=out, data=data)
+
+    n_surveys = n_steps * opts.flights_per_step
+    done_surveys = 0
+    dsm, canopy = scene.compose()
+    dem_prev = scene.dem()
+    mask_cum = np.zeros(grid.shape, np.uint8)
+    per_event: list[dict] = []
+    render_total = RenderRun()
+    scratch = Path(tempfile.mkdtemp(prefix="slidewatch-sim-"))
+    workers = opts.workers or default_workers()
+    dsm_by_step: dict[int, np.ndarray] = {}
+    t_truth = t_render = t_logs = 0.0
+    with FramePool(workers if opts.survey != "none" else 1, scratch) as pool:
+        for k in range(1, n_steps + 1):
+            step_dir = out / f"step{k}"
+            truth_dir = step_dir / "truth"
+            t0 = time.perf_counter()
+            step_rec: dict = {
+                "index": k,
+                "name": f"step{k}",
+                "date_local": (first_local + timedelta(days=(k - 1) * opts.days_between_steps))
+                .date()
+                .isoformat(),
+                "truth": {},
+                "events": [],
+            }
+            if k > 1:
+                scene, change = advance(
+                    scene,
+                    spec.slides(k, n_steps),
+                    spec.nuisance,
+                    rng_for(opts.seed, "step", k),
+                    dsm_before=dsm,
+                )
+                dsm, canopy = scene.compose()
+                mask_cum = np.where(change.mask > 0, change.mask, mask_cum).astype(np.uint8)
+                dem = scene.dem()
+                for i, res in enumerate(change.slides, start=1):
+                    rec = res.summary()
+                    sel = change.events == i
+                    file_delta = float((dem[sel].astype(np.float64) - dem_prev[sel]).sum())
+                    rec["index_in_events_raster"] = i
+                    rec["step"] = k
+                    rec["relative_volume_error_from_dem_files"] = float(
+                        f"{abs(file_delta) * grid.cell_area / res.depleted_m3:.3e}"
+                    )
+                    rec["mask_area_m2"] = round(float(sel.sum() * grid.cell_area), 4)
+                    step_rec["events"].append(rec)
+                    per_event.append(
+                        {
+                            "step": k,
+                            "name": res.spec.name,
+                            "depleted_m3": rec["depleted_m3"],
+                            "relative_error": rec["relative_volume_error"],
+                            "relative_error_from_dem_files": rec[
+                                "relative_volume_error_from_dem_files"
+                            ],
+                        }
+                    )
+                step_rec["nuisance"] = change.nuisance
+                step_rec["fallen_trees"] = change.fallen_trees
+                step_rec["vanished_trees"] = change.vanished_trees
+                step_rec["truth"]["mask"] = _rel(
+                    write_raster(
+                        truth_dir / "mask.tif",
+                        change.mask,
+                        grid,
+                        frame,
+                        MASK_NODATA,
+                        "landslide mask since the previous step",
+                    ),
+                    out,
+                )
+                step_rec["truth"]["mask_since_step1"] = _rel(
+                    write_raster(
+                        truth_dir / "mask_since_step1.tif",
+                        mask_cum,
+                        grid,
+                        frame,
+                        MASK_NODATA,
+                        "landslide mask since step 1",
+                    ),
+                    out,
+                )
+                step_rec["truth"]["events"] = _rel(
+                    write_raster(
+                        truth_dir / "events.tif",
+                        change.events,
+                        grid,
+                        frame,
+                        None,
+                        "1-based index of the step's event in manifest events",
+                    ),
+                    out,
+                )
+                dem_prev = dem
+            step_rec["truth"]["dsm"] = _rel(
+                write_raster(
+                    truth_dir / "dsm.tif",
+                    dsm,
+                    grid,
+                    frame,
+                    DSM_NODATA,
+                    "true DSM (surface incl. vegetation), m",
+                ),
+                out,
+            )
+            step_rec["truth"]["dem"] = _rel(
+                write_raster(
+                    truth_dir / "dem.tif",
+                    scene.dem(),
+                    grid,
+                    frame,
+                    DSM_NODATA,
+                    "true bare-earth DEM, m",
+                ),
+                out,
+            )
+            step_rec["trees"] = scene.trees.counts()
+            dsm_by_step[k] = dsm
+            t_truth += time.perf_counter() - t0
+
+            albedo = _albedo(scene, canopy, base_albedo, bank)
+            step_rec["surveys"] = []
+            for j in range(opts.flights_per_step):
+                srng = rng_for(opts.seed, "survey", k, j)
+                sun = Sun(float(srng.uniform(110, 250)), float(srng.uniform(38, 62)))
+                exposure = Exposure(
+                    gain=float(srng.uniform(0.93, 1.07)),
+                    white_balance=tuple(float(x) for x in srng.uniform(0.97, 1.03, 3)),
+                )
+                t0 = time.perf_counter()
+                ortho = orthoimage(albedo, shading(dsm, grid.res, sun), exposure)
+                if j == 0 and opts.write_ortho:
+                    step_rec["truth"]["ortho"] = _rel(
+                        write_raster(
+                            truth_dir / "ortho.tif",
+                            ortho,
+                            grid,
+                            frame,
+                            None,
+                            "orthoimage the first survey was rendered from",
+                        ),
+                        out,
+                    )
+                t_truth += time.perf_counter() - t0
+                start_local = first_local + timedelta(
+                    days=(k - 1) * opts.days_between_steps, minutes=40 * j
+                )
+                start_local += timedelta(seconds=float(srng.uniform(0, 600)))
+                start_local = start_local.replace(microsecond=0)
+                survey = _survey(
+                    pool,
+                    out,
+                    step_dir / f"flight{j + 1}",
+                    scene,
+                    dsm,
+                    ortho,
+                    frame,
+                    camera,
+                    still,
+                    plan,
+                    spec.home_xy,
+                    opts,
+                    gnss_model,
+                    imu_model,
+                    srng,
+                    start_local,
+                    tz,
+                    f"s{k}f{j + 1}",
+                    render_total,
+                )
+                survey["id"] = f"step{k}-flight{j + 1}"
+                survey["sun"] = {
+                    "azimuth_deg": round(sun.azimuth_deg, 2),
+                    "elevation_deg": round(sun.elevation_deg, 2),
+                }
+                survey["exposure"] = exposure.to_dict()
+                t_render += survey.pop("_render_time")
+                t_logs += survey.pop("_log_time")
+                step_rec["surveys"].append(survey)
+                done_surveys += 1
+                progress(0.05 + 0.85 * done_surveys / max(n_surveys, 1))
+            data["steps"].append(step_rec)
+            manifest.save()
+
+    t0 = time.perf_counter()
+    if opts.registration and n_steps >= 2:
+        r_step = spec.registration_step(n_steps)
+        ref = manifest.step(1)["truth"]["dsm"]
+        for name, shift in registration_patterns(spec.registration_scale).items():
+            shifted = shift_dsm(dsm_by_step[r_step], grid.res, shift)
+            path = write_raster(
+                out / "registration" / f"step{r_step}_pattern-{name}_dsm.tif",
+                shifted,
+                grid,
+                frame,
+                DSM_NODATA,
+                f"step {r_step} DSM shifted by {shift} m (e, n, u)",
+            )
+            data["registration"].append(
+                {
+                    "pattern": name,
+                    "shift_enu_m": [round(v, 6) for v in shift],
+                    "step": r_step,
+                    "reference_dsm": ref,
+                    "unshifted_dsm": manifest.step(r_step)["truth"]["dsm"],
+                    "shifted_dsm": _rel(path, out),
+                    "mask": manifest.step(r_step)["truth"].get("mask_since_step1"),
+                }
+            )
+    timings["registration"] = time.perf_counter() - t0
+    timings["truth"] = t_truth
+    timings["surveys_render_and_encode"] = t_render
+    timings["surveys_logs"] = t_logs
+    timings["total"] = time.perf_counter() - t_all
+    errs = [e["relative_error"] for e in per_event]
+    ferrs = [e["relative_error_from_dem_files"] for e in per_event]
+    data["volume_conservation"] = {
+        "tolerance_relative": 1e-6,
+        "tolerance_relative_from_dem_files": 1e-3,
+        "max_relative_error": max(errs) if errs else 0.0,
+        "max_relative_error_from_dem_files": max(ferrs) if ferrs else 0.0,
+        "per_event": per_event,
+    }
+    data["rendering"] = {
+        "frames": render_total.frames,
+        "render_seconds_in_workers": round(render_total.render_seconds, 3),
+        "render_cpu_seconds": round(render_total.cpu_seconds, 3),
+        "cpu_ms_per_frame": round(1000 * render_total.cpu_seconds / max(render_total.frames, 1), 2),
+        "frames_per_cpu_second": round(render_total.frames / render_total.cpu_seconds, 2)
+        if render_total.cpu_seconds > 0
+        else None,
+        "frames_per_second_per_process": round(render_total.frames / render_total.render_seconds, 2)
+        if render_total.render_seconds > 0
+        else None,
+        "frames_per_second_wall_incl_encoding": round(
+            render_total.frames / render_total.wall_seconds, 2
+        )
+        if render_total.wall_seconds > 0
+        else None,
+        "workers": workers,
+    }
+    data["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
+    data["platform"] = {"python": platform.python_version(), "machine": platform.machine()}
+    manifest.save()
+    for p in scratch.glob("*.npy"):
+        p.unlink()
+    scratch.rmdir()
+    progress(1.0)
+    return manifest
+
+
+def _rel(path: Path, root: Path) -> str:
+    return Path(path).relative_to(root).as_posix()
+
+
+def _albedo(scene: Scene, canopy, base: np.ndarray, bank: TextureBank) -> np.ndarray:
+    alb = base
+    if scene.disturbed is not None:
+        alb = disturbed_albedo(alb, bank, scene.disturbed, scene.sand_like)
+    return tree_albedo(alb, bank, canopy.index, scene.trees.kind, scene.trees.tone, canopy.radial)
+
+
+def _survey(
+    pool: FramePool,
+    out: Path,
+    sdir: Path,
+    scene: Scene,
+    dsm: np.ndarray,
+    ortho: np.ndarray,
+    frame: SceneFrame,
+    camera: CameraModel,
+    still: CameraModel,
+    plan,
+    home_xy,
+    opts: SimulationOptions,
+    gnss_model: GnssErrorModel,
+    imu_model: ImuErrorModel,
+    rng: np.random.Generator,
+    start_local: datetime,
+    tz: timedelta,
+    key: str,
+    render_total: RenderRun,
+) -> dict:
+    """Fly one survey and write its video / images, logs and true trajectory."""
+    sdir.mkdir(parents=True, exist_ok=True)
+    flight = build_flight(plan, camera, scene.height_at, home_xy, rng)
+    start_utc = start_local - tz
+    t_log0, t_log1 = float(flight.t[0]), float(flight.t[-1])
+    gnss = simulate_gnss(gnss_model, t_log0 - 5.0, t_log1 + 5.0, rng)
+    att = simulate_attitude_errors(imu_model, t_log0 - 5.0, t_log1 + 5.0, rng)
+    home_abs_logged = float(flight.home[2] + gnss.error_at(np.array([t_log0 + 3.0]))[0, 2])
+    rec: dict = {
+        "kind": opts.survey,
+        "start_local": start_local.isoformat(timespec="milliseconds"),
+        "start_utc": start_utc.isoformat(timespec="milliseconds") + "Z",
+        "log_time_offset_s": opts.log_time_offset_s,
+        "gnss": gnss.summary(),
+        "compass_yaw_bias_deg": round(att.yaw_bias, 4),
+        "flight": {
+            "plan": plan.to_dict(),
+            "speed_m_s": round(flight.speed_m_s, 4),
+            "path_length_m": round(flight.path_length_m, 3),
+            "line_spacing_m": round(flight.line_spacing_m, 4),
+            "lines": flight.n_lines,
+            "duration_s": round(flight.duration, 4),
+            "home_local": [round(float(v), 4) for v in flight.home],
+            **flight.info,
+        },
+    }
+    t_render = 0.0
+    t_logs = 0.0
+
+    def logged(times: np.ndarray) -> dict:
+        """What the aircraft logs at true times `times`."""
+        s = flight.sample(times)
+        err = gnss.error_at(times)
+        pos = s["position"]
+        lon, lat = frame.lonlat(pos[:, 0] + err[:, 0], pos[:, 1] + err[:, 1])
+        abs_alt = pos[:, 2] + err[:, 2]
+        a_err, g_err = att.at(times)
+        return {
+            "true": s,
+            "lat": np.asarray(lat),
+            "lon": np.asarray(lon),
+            "abs_alt": abs_alt,
+            "rel_alt": abs_alt - home_abs_logged,
+            "aircraft_ypr": s["aircraft_ypr"] + a_err,
+            "gimbal_ypr": s["gimbal_ypr"] + g_err,
+        }
+
+    if opts.survey in ("video", "both"):
+        from worker.simulator.video import VideoOptions, VideoWriter
+
+        n_frames = int(np.floor(flight.duration * opts.fps + 1e-9)) + 1
+        times = np.arange(n_frames) / opts.fps
+        pos, rot = flight.camera_pose(times)
+        t0 = time.perf_counter()
+        ref = pool.scene(
+            f"{key}-video",
+            dsm,
+            scene.grid,
+            ortho,
+            camera,
+            opts.render,
+            noise_seed=zlib.crc32(key.encode()),
+        )
+        video_path = sdir / "DJI_0001.MP4"
+        run = RenderRun()
+        preview = None
+        with VideoWriter(
+            video_path,
+            camera.width,
+            camera.height,
+            VideoOptions(fps=opts.fps, codec=opts.video_codec, crf=opts.crf),
+            creation_time=start_utc,
+        ) as vw:
+            for i, img in enumerate(pool.render(ref, pos, rot, stats=run)):
+                vw.write(img)
+                if i == n_frames // 2:
+                    preview = img
+        t_render += time.perf_counter() - t0
+        render_total.frames += run.frames
+        render_total.render_seconds += run.render_seconds
+        render_total.cpu_seconds += run.cpu_seconds
+        render_total.wall_seconds += run.wall_seconds
+        if preview is not None:
+            cv2.imwrite(str(sdir / "preview.png"), preview[..., ::-1])
+            rec["preview"] = _rel(sdir / "preview.png", out)
+            rec["preview_frame"] = n_frames // 2
+        t0 = time.perf_counter()
+        lg = logged(times)
+        srt_path = sdir / "DJI_0001.SRT"
+        write_dji_srt(
+            srt_path,
+            opts.fps,
+            start_local,
+            lg["lat"],
+            lg["lon"],
+            lg["rel_alt"],
+            lg["abs_alt"],
+            lg["gimbal_ypr"],
+            SrtOptions(decimals=opts.srt_decimals, gimbal=opts.srt_gimbal),
+        )
+        traj_path = sdir / "trajectory.csv"
+        cam_ypr = flight.sample(times)["gimbal_ypr"]
+        write_trajectory_csv(
+            traj_path,
+            np.arange(n_frames),
+            times,
+            start_utc,
+            frame,
+            pos,
+            rot,
+            cam_ypr,
+            lg["true"]["aircraft_ypr"],
+            lg["true"]["velocity"],
+        )
+        t_logs += time.perf_counter() - t0
+        rec.update(
+            {
+                "video": _rel(video_path, out),
+                "srt": _rel(srt_path, out),
+                "trajectory": _rel(traj_path, out),
+                "frames": n_frames,
+                "fps": opts.fps,
+                "width": camera.width,
+                "height": camera.height,
+                "video_codec": vw.result.codec,
+                "render": {
+                    "cpu_ms_per_frame": round(1000 * run.cpu_seconds / max(run.frames, 1), 2),
+                    "frames_per_second_per_process": round(run.frames / run.render_seconds, 2)
+                    if run.render_seconds
+                    else None,
+                    "frames_per_second_wall_incl_encoding": round(run.frames / run.wall_seconds, 2)
+                    if run.wall_seconds
+                    else None,
+                },
+            }
+        )
+
+    photo_times = np.zeros(0)
+    if opts.survey in ("images", "both"):
+        alt = plan.altitude_m
+        along = still.ground_footprint(alt)[1]
+        spacing = max((1.0 - opts.image_overlap) * along, 0.05)
+        photo_times = np.arange(0.0, flight.duration + 1e-9, spacing / flight.speed_m_s)
+        pos, rot = flight.camera_pose(photo_times)
+        t0 = time.perf_counter()
+        ref = pool.scene(
+            f"{key}-images",
+            dsm,
+            scene.grid,
+            ortho,
+            still,
+            opts.render,
+            noise_seed=zlib.crc32(key.encode()) + 1,
+        )
+        img_dir = sdir / "images"
+        img_dir.mkdir(parents=True, exist_ok=True)
+        lg = logged(photo_times)
+        names = []
+        run = RenderRun()
+        rtk = gnss_model.mode == "rtk"
+        for i, img in enumerate(pool.render(ref, pos, rot, stats=run)):
+            name = f"DJI_{i + 1:04d}.JPG"
+            names.append(name)
+            write_dji_jpeg(
+                img_dir / name,
+                img,
+                ImageMeta(
+                    time_local=start_local + timedelta(seconds=float(photo_times[i])),
+                    lat=float(lg["lat"][i]),
+                    lon=float(lg["lon"][i]),
+                    abs_alt=float(lg["abs_alt"][i]),
+                    rel_alt=float(lg["rel_alt"][i]),
+                    gimbal_yaw=float(_wrap(lg["gimbal_ypr"][i, 0])),
+                    gimbal_pitch=float(lg["gimbal_ypr"][i, 1]),
+                    gimbal_roll=float(lg["gimbal_ypr"][i, 2]),
+                    flight_yaw=float(_wrap(lg["aircraft_ypr"][i, 0])),
+                    flight_pitch=float(lg["aircraft_ypr"][i, 1]),
+                    flight_roll=float(lg["aircraft_ypr"][i, 2]),
+                    rtk_std=gnss_model.noise_sigma_m if rtk else None,
+                ),
+            )
+        t_render += time.perf_counter() - t0
+        render_total.frames += run.frames
+        render_total.render_seconds += run.render_seconds
+        render_total.cpu_seconds += run.cpu_seconds
+        render_total.wall_seconds += run.wall_seconds
+        images_csv = sdir / "images.csv"
+        cam_ypr = flight.sample(photo_times)["gimbal_ypr"]
+        write_trajectory_csv(
+            images_csv,
+            np.arange(len(photo_times)),
+            photo_times,
+            start_utc,
+            frame,
+            pos,
+            rot,
+            cam_ypr,
+            lg["true"]["aircraft_ypr"],
+            lg["true"]["velocity"],
+        )
+        _prepend_names(images_csv, names)
+        rec.update(
+            {
+                "images_dir": _rel(img_dir, out),
+                "images_csv": _rel(images_csv, out),
+                "images": len(names),
+                "image_spacing_m": round(spacing, 4),
+            }
+        )
+
+    if opts.survey != "none":
+        t0 = time.perf_counter()
+        csv_path = sdir / "flight-airdata.csv"
+        write_airdata_csv(
+            csv_path,
+            _log_record(flight, frame, scene, logged, start_utc, opts, photo_times, rng),
+            units=opts.csv_units,
+        )
+        rec["flight_log_csv"] = _rel(csv_path, out)
+        rec["flight_log_start_s"] = round(float(flight.t[0]), 6)
+        rec["flight_log_rate_hz"] = opts.log_rate_hz
+        rec["flight_log_units"] = opts.csv_units
+        t_logs += time.perf_counter() - t0
+    rec["_render_time"] = t_render
+    rec["_log_time"] = t_logs
+    return rec
+
+
+def _wrap(a):
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+def _prepend_names(path: Path, names: list[str]) -> None:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    out = ["image," + lines[0]] + [f"{n},{line}" for n, line in zip(names, lines[1:], strict=True)]
+    path.write_text("\n".join(out) + "\n", encoding="utf-8")
+
+
+def _log_record(
+    flight: Flight,
+    frame: SceneFrame,
+    scene: Scene,
+    logged,
+    start_utc: datetime,
+    opts: SimulationOptions,
+    photo_times: np.ndarray,
+    rng: np.random.Generator,
+) -> LogRecord:
+    dt = 1.0 / opts.log_rate_hz
+    t_rows = np.arange(flight.t[0], flight.t[-1] + 1e-9, dt)
+    lg = logged(t_rows - opts.log_time_offset_s)
+    true = lg["true"]
+    pos = true["position"]
+    ground = scene.height_at(pos[:, 0], pos[:, 1])
+    dist = np.hypot(pos[:, 0] - flight.home[0], pos[:, 1] - flight.home[1])
+    is_video = (
+        (t_rows >= 0.0) & (t_rows <= flight.duration)
+        if opts.survey in ("video", "both")
+        else np.zeros(t_rows.size, bool)
+    )
+    is_photo = np.zeros(t_rows.size, bool)
+    if photo_times.size:
+        idx = np.clip(np.searchsorted(t_rows, photo_times), 0, t_rows.size - 1)
+        is_photo[idx] = True
+    sats = np.clip(np.round(18 + np.cumsum(rng.normal(0, 0.05, t_rows.size))), 12, 24)
+    if opts.gnss == "rtk":
+        sats = sats + 14
+    state = []
+    take_off = flight.t[0] + 3.0
+    for t, vz, z in zip(t_rows, true["velocity"][:, 2], pos[:, 2], strict=True):
+        if t < take_off or (
+            t > flight.duration + 2.0
+            and z - flight.home[2] < 0.05
+            and vz > -0.05
+            and t > flight.duration + 4.0
+        ):
+            state.append("Motors_Off")
+        elif t < 0 and vz > 0.3:
+            state.append("AutoTakeoff")
+        elif t > flight.duration + 2.0:
+            state.append("AutoLanding")
+        else:
+            state.append("Waypoint")
+    return LogRecord(
+        time_ms=np.round((t_rows - t_rows[0]) * 1000.0).astype(np.int64),
+        utc=[start_utc + timedelta(seconds=float(t)) for t in t_rows],
+        lat=lg["lat"],
+        lon=lg["lon"],
+        rel_alt=lg["rel_alt"],
+        abs_alt=lg["abs_alt"],
+        ground_z=ground,
+        home_z=float(flight.home[2]),
+        vel_enu=true["velocity"],
+        dist_home=dist,
+        aircraft_ypr=lg["aircraft_ypr"],
+        gimbal_ypr=lg["gimbal_ypr"],
+        is_video=is_video,
+        is_photo=is_photo,
+        satellites=sats,
+        state=state,
+    )
+
+
+def with_options(base: SimulationOptions, **changes) -> SimulationOptions:
+    """A copy of `base` with some fields changed (None values are ignored)."""
+    return replace(base, **{k: v for k, v in changes.items() if v is not None})
+
+
+__all__ = [
+    "SURVEY_MODES",
+    "SimulationOptions",
+    "rng_for",
+    "simulate_scenario",
+    "with_options",
+]
