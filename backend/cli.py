@@ -149,9 +149,11 @@ def run() -> None:
 
 def _register_pipeline_commands() -> None:
     from worker.commands.detect import detect
+    from worker.commands.reconstruct import reconstruct
     from worker.commands.simulate import simulate_command
 
     main.add_command(detect)
+    main.add_command(reconstruct)
     main.add_command(simulate_command)
 
 

@@ -1,0 +1,237 @@
+"""End to end on a short simulated survey of the paper's mound field, through the CLI.
+
+The simulator (worker.simulator) renders 6 s of 640x360 video at 15 fps from 7 m with a
+DJI SRT, an AirData CSV (stand-alone GPS: a bias of metres, drift and noise; compass and
+gimbal angles) and the truth (DSM, camera trajectory). Without ground control points no
+method can see the flight's common GNSS bias, so the DSM is compared with the truth after
+removing the mean difference between the estimated and the true camera positions.
+
+Tolerances (2 cm DSM pixels, 1.6 cm ground sampling distance): NMAD of the measured
+cells below 12 cm, median below 8 cm, completeness above 80 %; trajectory within 15 cm
+after the bias; time offset within 0.05 s of the truth (the manifest's log start).
+"""
+
+import csv
+import json
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+from click.testing import CliRunner
+from rasterio.warp import Resampling, reproject
+from rio_cogeo.cogeo import cog_validate
+
+from worker.commands.reconstruct import reconstruct
+from worker.pipeline.reconstruction import ReconstructionOptions, run_stage
+from worker.pipeline.trajectory import read_trajectory_csv
+from worker.simulator.simulate import SimulationOptions, simulate_scenario
+
+
+@pytest.fixture(scope="session")
+def survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("sim")
+    options = SimulationOptions(
+        steps=1,
+        video_seconds=6.0,
+        fps=15.0,
+        registration=False,
+        write_ortho=False,
+        workers=1,
+        seed=3,
+    )
+    simulate_scenario("paper-mounds", out, options)
+    return out / "step1" / "flight1", out / "step1" / "truth"
+
+
+def run_cli(*args: object) -> tuple[int, str]:
+    result = CliRunner().invoke(reconstruct, [str(a) for a in args])
+    return result.exit_code, result.output
+
+
+@pytest.fixture(scope="session")
+def slam_run(survey, tmp_path_factory) -> tuple[Path, dict]:
+    flight, _ = survey
+    out = tmp_path_factory.mktemp("slam")
+    code, output = run_cli(
+        "--video",
+        flight / "DJI_0001.MP4",
+        "--log",
+        flight / "flight-airdata.csv",
+        "--out",
+        out,
+        "--png",
+    )
+    assert code == 0, output
+    return out, json.loads(output.strip().splitlines()[-1])
+
+
+def bias_and_trajectory_error(out: Path, flight: Path) -> tuple[np.ndarray, np.ndarray]:
+    traj = read_trajectory_csv(out / "trajectory.csv")
+    with open(flight / "trajectory.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    t = np.array([float(r["t_s"]) for r in rows])
+    enu = np.array([[float(r[k]) for k in ("e", "n", "u")] for r in rows])
+    truth = np.column_stack([np.interp(traj.t, t, enu[:, k]) for k in range(3)])
+    err = traj.positions - truth
+    bias = err.mean(axis=0)
+    return bias, np.linalg.norm(err - bias, axis=1)
+
+
+def dsm_error(out: Path, truth_dir: Path, bias: np.ndarray) -> tuple[np.ndarray, float]:
+    with rasterio.open(out / "dsm.tif") as src:
+        dsm = src.read(1, masked=True).filled(np.nan)
+        transform, crs = src.transform, src.crs
+    with rasterio.open(out / "dsm_filled.tif") as src:
+        measured = src.read(1) == 0
+    shifted = transform * Affine.translation(0, 0)
+    shifted = Affine(transform.a, 0, transform.c - bias[0], 0, transform.e, transform.f - bias[1])
+    truth = np.full(dsm.shape, np.nan, np.float32)
+    with rasterio.open(truth_dir / "dsm.tif") as src:
+        reproject(
+            rasterio.band(src, 1),
+            truth,
+            dst_transform=shifted,
+            dst_crs=crs,
+            resampling=Resampling.average,
+            dst_nodata=np.nan,
+        )
+    diff = dsm - bias[2] - truth
+    ok = np.isfinite(diff) & measured
+    return diff[ok], float(ok.sum())
+
+
+def test_cli_writes_every_product(slam_run):
+    out, summary = slam_run
+    assert summary["method"] == "slam" and summary["crs"] == "EPSG:32654"
+    for name in (
+        "dsm.tif",
+        "dsm_filled.tif",
+        "dsm.png",
+        "points.ply",
+        "trajectory.csv",
+        "report.json",
+    ):
+        assert (out / name).is_file(), name
+    assert cog_validate(str(out / "dsm.tif"), quiet=True)[0]
+    with rasterio.open(out / "dsm.tif") as src:
+        assert src.crs.to_epsg() == 32654 and src.nodata == -9999
+        assert abs(src.res[0] - 0.02) < 1e-9
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["timings_s"]) == {"ingest", "frames", "reconstruct", "georeference", "dsm"}
+    assert report["residuals_m"][0]["rms_up"] < 1.0
+    assert report["real_time_factor"] > 0
+    assert read_trajectory_csv(out / "trajectory.csv").crs == "EPSG:32654"
+
+
+def test_dsm_matches_the_truth_beyond_the_gnss_bias(slam_run, survey):
+    out, summary = slam_run
+    flight, truth_dir = survey
+    bias, traj_err = bias_and_trajectory_error(out, flight)
+    assert np.median(traj_err) < 0.15
+    diff, _ = dsm_error(out, truth_dir, bias)
+    median = float(np.median(diff))
+    nmad = 1.4826 * float(np.median(np.abs(diff - median)))
+    assert abs(median) < 0.08
+    assert nmad < 0.12
+    assert summary["completeness"] > 0.8
+
+
+def test_time_offset_estimated_from_the_video(slam_run, survey):
+    out, _ = slam_run
+    flight, _ = survey
+    manifest = json.loads((flight.parents[1] / "manifest.json").read_text())
+    true_offset = -manifest["steps"][0]["surveys"][0]["flight_log_start_s"]
+    frames = json.loads((out / "frames.json").read_text())
+    geo = json.loads((out / "georeference.json").read_text())
+    assert frames["time_offset"]["prior_source"] == "recording_flag"
+    assert frames["time_offset_estimate"]["method"] == "motion_correlation"
+    assert abs(frames["time_offset_estimate"]["offset_s"] - true_offset) < 0.15
+    assert geo["time_offset"]["method"] == "trajectory_fit"
+    assert abs(geo["time_offset"]["offset_s"] - true_offset) < 0.05
+
+
+def test_stages_are_idempotent(slam_run):
+    out, _ = slam_run
+    with rasterio.open(out / "dsm.tif") as src:
+        before = src.read(1)
+    run_stage("dsm", out, ReconstructionOptions())
+    with rasterio.open(out / "dsm.tif") as src:
+        np.testing.assert_array_equal(src.read(1), before)
+    assert not list(out.glob(".*.part*"))
+
+
+def test_sfm_reference_method(survey, tmp_path):
+    flight, _ = survey
+    code, output = run_cli(
+        "--video",
+        flight / "DJI_0001.MP4",
+        "--log",
+        flight / "DJI_0001.SRT",
+        "--out",
+        tmp_path,
+        "--method",
+        "sfm",
+    )
+    assert code == 0, output
+    rec = json.loads((tmp_path / "reconstruct.json").read_text())
+    assert rec["method"] == "sfm" and rec["sfm"]["registered"] >= 8
+    assert (tmp_path / "dsm.tif").is_file()
+
+
+# -- unusable input through the CLI ------------------------------------------------------
+
+
+def test_corrupt_video(survey, tmp_path):
+    flight, _ = survey
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes((flight / "DJI_0001.MP4").read_bytes()[:3000])
+    code, output = run_cli(
+        "--video", bad, "--log", flight / "DJI_0001.SRT", "--out", tmp_path / "o"
+    )
+    assert code == 2 and "bad.mp4: not a readable video" in output
+
+
+def test_empty_log(survey, tmp_path):
+    flight, _ = survey
+    empty = tmp_path / "empty.srt"
+    empty.write_text("")
+    code, output = run_cli(
+        "--video", flight / "DJI_0001.MP4", "--log", empty, "--out", tmp_path / "o"
+    )
+    assert code == 2 and "empty.srt: the flight log is empty" in output
+
+
+def test_log_of_another_flight(survey, tmp_path):
+    flight, _ = survey
+    created = av.open(str(flight / "DJI_0001.MP4")).metadata["creation_time"]
+    assert created  # the simulator stamps its videos
+    other = tmp_path / "other.csv"
+    other.write_text(
+        "time,lat,lon,alt\n"
+        "2024-05-12T01:00:00Z,36.0585,140.1044,30\n"
+        "2024-05-12T01:05:00Z,36.0586,140.1045,30\n"
+    )
+    code, output = run_cli(
+        "--video", flight / "DJI_0001.MP4", "--log", other, "--out", tmp_path / "o"
+    )
+    assert code == 2 and "does not overlap DJI_0001.MP4 in time" in output
+
+
+def test_images_without_gps(tmp_path):
+    import cv2
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"IMG_{i}.jpg"), np.full((40, 60, 3), 128, np.uint8))
+    code, output = run_cli("--images", folder, "--out", tmp_path / "o")
+    assert code == 2 and "3 of 3 images have no GPS position" in output
+
+
+def test_video_without_log(survey, tmp_path):
+    flight, _ = survey
+    code, output = run_cli("--video", flight / "DJI_0001.MP4", "--out", tmp_path / "o")
+    assert code == 2 and "needs its flight log" in output

@@ -1,0 +1,297 @@
+"""SLAM building blocks: tracking, bundle adjustment, SGBM densification, the map,
+point-cloud filters and the frames stage, on synthetic data with known geometry."""
+
+import cv2
+import numpy as np
+import pytest
+
+from worker.pipeline.frames import (
+    BlurFilter,
+    FrameOptions,
+    KeyframePolicy,
+    iter_prepared_frames,
+    prepare_video_frames,
+    sharpness,
+)
+from worker.pipeline.pointcloud import grid_outliers, read_ply, statistical_outliers, write_ply
+from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
+from worker.pipeline.slam.densify import densify_pair
+from worker.pipeline.slam.geometry import triangulate_midpoint
+from worker.pipeline.slam.result import SparseMap
+from worker.pipeline.slam.tracker import KltTracker
+from worker.simulator.camera import CameraModel, rotation_world_from_camera
+from worker.simulator.georef import Grid
+from worker.simulator.render import HeightFieldRenderer, RenderOptions
+
+K = np.array([[427.0, 0.0, 319.5], [0.0, 427.0, 179.5], [0.0, 0.0, 1.0]])
+
+
+def texture(shape: tuple[int, int], seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    img = np.zeros((h, w), np.float32)
+    for step, amp in ((32, 0.5), (8, 0.3), (2, 0.2)):
+        small = rng.random((h // step + 2, w // step + 2)).astype(np.float32)
+        img += amp * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)[:h, :w]
+    return cv2.normalize(img, None, 20, 235, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    """A 120 m textured height field and a renderer looking down at it."""
+    grid = Grid.centered(120.0, 120.0, 0.1)
+    x, y = grid.mesh()
+    dsm = (50 + 3 * np.sin(x / 9.0) * np.cos(y / 11.0) + 0.05 * x).astype(np.float32)
+    ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
+    camera = CameraModel.phantom4pro(640, 360)
+    renderer = HeightFieldRenderer(
+        dsm, grid, ortho, camera, RenderOptions(noise_sigma=0.5, vignetting=0.0)
+    )
+    return grid, dsm, renderer
+
+
+def render_gray(renderer, centre, heading=0.0):
+    r = rotation_world_from_camera(heading, -90.0, 0.0)
+    frame = renderer.render(np.asarray(centre, float), r)
+    return cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY), r
+
+
+def test_klt_tracks_keep_their_ids():
+    base = texture((400, 700), 2)
+    tracker = KltTracker()
+    first = base[20:380, 30:670]
+    tracker.track(first)
+    assert tracker.detect(first) > 300
+    ids0, pts0 = tracker.ids.copy(), tracker.pts.copy()
+    ids1, pts1 = tracker.track(base[24:384, 27:667])  # content moves by (-3, -4) px
+    common, i0, i1 = np.intersect1d(ids0, ids1, return_indices=True)
+    assert len(common) > 0.9 * len(ids0)
+    np.testing.assert_allclose(np.median(pts1[i1] - pts0[i0], axis=0), [3.0, -4.0], atol=0.05)
+    tracker.remove(common[:10])
+    assert not np.isin(common[:10], tracker.ids).any()
+
+
+def test_midpoint_triangulation():
+    x = np.array([[1.0, 2.0, 3.0], [-4.0, 0.5, 7.0]])
+    c1, c2 = np.zeros((2, 3)), np.tile([1.0, 0.0, 0.0], (2, 1))
+    d1 = x / np.linalg.norm(x, axis=1, keepdims=True)
+    d2 = (x - c2) / np.linalg.norm(x - c2, axis=1, keepdims=True)
+    p, s, u, angle = triangulate_midpoint(c1, d1, c2, d2)
+    np.testing.assert_allclose(p, x, atol=1e-9)
+    assert (s > 0).all() and (u > 0).all() and (angle > 0).all()
+
+
+def _ba_scene(seed: int = 0, n_cam: int = 12, n_pts: int = 800):
+    rng = np.random.default_rng(seed)
+    r_cw = rotation_world_from_camera(0.0, -90.0, 0.0).T
+    centres = np.column_stack(
+        [np.arange(n_cam) * 4.0, 8 * np.sin(np.arange(n_cam) / 2.0), np.full(n_cam, 60.0)]
+    )
+    pts = np.column_stack(
+        [rng.uniform(-30, 75, n_pts), rng.uniform(-40, 40, n_pts), rng.normal(0, 2, n_pts)]
+    )
+    obs = {}
+    for i, c in enumerate(centres):
+        pc = (pts - c) @ r_cw.T
+        uv = pc[:, :2] / pc[:, 2:] * 427.0 + [319.5, 179.5]
+        vis = np.flatnonzero((uv[:, 0] > 0) & (uv[:, 0] < 640) & (uv[:, 1] > 0) & (uv[:, 1] < 360))
+        obs[i] = (vis.astype(np.int64), uv[vis] + rng.normal(0, 0.3, (vis.size, 2)))
+    return rng, r_cw, centres, pts, obs
+
+
+def test_windowed_bundle_adjustment_with_fixed_frames():
+    rng, r_cw, centres, pts, obs = _ba_scene()
+    poses = {
+        i: (r_cw, -r_cw @ (c + (rng.normal(0, 0.4, 3) if i >= 4 else 0)))
+        for i, c in enumerate(centres)
+    }
+    noisy = {j: pts[j] + rng.normal(0, 0.4, 3) for j in range(len(pts))}
+    new_poses, _, report = bundle_adjust(
+        BAProblem(poses, obs, noisy, fixed={0, 1, 2, 3}), K, (640, 360), max_iterations=30
+    )
+    err = [np.linalg.norm(-r.T @ t - centres[i]) for i, (r, t) in new_poses.items()]
+    assert max(err[:4]) < 1e-9  # fixed
+    assert max(err) < 0.1
+    assert report.final_cost < report.initial_cost and report.points > 500
+
+
+def test_pose_priors_move_the_model_onto_gnss():
+    rng, r_cw, centres, pts, obs = _ba_scene(1)
+    shift = np.array([3.0, -2.0, 1.0])
+    poses = {i: (r_cw, -r_cw @ (c + shift)) for i, c in enumerate(centres)}
+    moved = {j: pts[j] + shift for j in range(len(pts))}
+    priors = {
+        i: (c + rng.normal(0, 0.05, 3), np.array([0.05, 0.05, 0.1])) for i, c in enumerate(centres)
+    }
+    new_poses, _, report = bundle_adjust(BAProblem(poses, obs, moved, priors=priors), K, (640, 360))
+    assert report.priors_used == len(centres)
+    err = [np.linalg.norm(-r.T @ t - centres[i]) for i, (r, t) in new_poses.items()]
+    assert np.median(err) < 0.1
+
+
+@pytest.mark.parametrize(("heading", "move"), [(0.0, (0.0, 6.0, 0.0)), (90.0, (6.0, 0.0, 0.0))])
+def test_sgbm_densification_recovers_the_surface(terrain, heading, move):
+    grid, dsm, renderer = terrain
+    ca = np.array([0.0, 0.0, 110.0])
+    cb = ca + move
+    ga, r = render_gray(renderer, ca, heading)
+    gb, _ = render_gray(renderer, cb, heading)
+    r_cw = r.T
+    pts = densify_pair(ga, gb, K, (r_cw, -r_cw @ ca), (r_cw, -r_cw @ cb), (50.0, 70.0))
+    assert len(pts) > 20000
+    world = pts @ r_cw + ca
+    col, row = grid.col_row(world[:, 0], world[:, 1])
+    truth = dsm[
+        np.clip(np.rint(row).astype(int), 0, grid.height - 1),
+        np.clip(np.rint(col).astype(int), 0, grid.width - 1),
+    ]
+    err = world[:, 2] - truth
+    assert abs(np.median(err)) < 0.05
+    # sigma_Z = Z^2 / (f B) sigma_d = 1.4 m per pixel of disparity here: 0.3 px or better.
+    assert 1.4826 * np.median(np.abs(err - np.median(err))) < 0.4
+
+
+def _tiny_map() -> SparseMap:
+    r = np.stack([rotation_world_from_camera(0.0, -90.0, 0.0).T] * 3)
+    centres = np.array([[0.0, 0.0, 10.0], [1.0, 0.0, 10.0], [2.0, 0.0, 10.0]])
+    tr = -np.einsum("nij,nj->ni", r, centres)
+    eye = np.broadcast_to(np.eye(3), (3, 3, 3)).copy()
+    return SparseMap(
+        k=K,
+        size=(640, 360),
+        kf_id=np.arange(3, dtype=np.int32),
+        kf_segment=np.zeros(3, np.int32),
+        kf_t=np.array([0.0, 1.0, 2.0]),
+        kf_r=r,
+        kf_tr=tr,
+        obs_kf=np.zeros(0, np.int32),
+        obs_point=np.zeros(0, np.int64),
+        obs_uv=np.zeros((0, 2), np.float32),
+        point_id=np.array([7], np.int64),
+        point_xyz=np.array([[1.0, 1.0, 0.0]]),
+        point_segment=np.zeros(1, np.int32),
+        fr_t=np.array([0.0, 1.0, 2.0]),
+        fr_segment=np.zeros(3, np.int32),
+        fr_r=r.copy(),
+        fr_tr=tr.copy(),
+        fr_is_kf=np.ones(3, bool),
+        fr_ref_kf=np.arange(3, dtype=np.int32),
+        fr_rel_r=eye,
+        fr_rel_t=np.zeros((3, 3)),
+        dense_kf=np.array([0, 0], np.int32),
+        dense_partner=np.array([2, 2], np.int32),
+        dense_xyz=np.array([[0.0, 0.0, 10.0], [1.0, -1.0, 9.0]], np.float32),
+        dense_baseline=np.array([2.0, 2.0]),
+    )
+
+
+def test_map_transform_moves_everything_consistently(tmp_path):
+    m = _tiny_map()
+    before = m.dense_points()
+    np.testing.assert_allclose(before[0], [0.0, 0.0, 0.0], atol=1e-9)
+    rot = rotation_world_from_camera(30.0, 0.0, 0.0)[:, [0, 2, 1]]
+    rot = np.linalg.qr(rot)[0] * np.sign(np.linalg.det(np.linalg.qr(rot)[0]))
+    s, t = 2.5, np.array([100.0, 200.0, 5.0])
+    m.transform(s, rot, t)
+    np.testing.assert_allclose(m.dense_points(), s * before @ rot.T + t, atol=1e-9)
+    np.testing.assert_allclose(m.point_xyz, s * np.array([[1.0, 1.0, 0.0]]) @ rot.T + t)
+    np.testing.assert_allclose(m.trajectory().positions, m.kf_centres(), atol=1e-9)
+    m.save(tmp_path / "map.npz")
+    again = SparseMap.load(tmp_path / "map.npz")
+    np.testing.assert_allclose(again.dense_points(), m.dense_points())
+
+
+def test_grid_outliers_and_statistical_outliers():
+    rng = np.random.default_rng(0)
+    pts = np.column_stack(
+        [rng.uniform(0, 20, 40000), rng.uniform(0, 20, 40000), rng.normal(0, 0.02, 40000)]
+    )
+    pts[:50, 2] += 3.0
+    keep = grid_outliers(pts, 1.0)
+    assert not keep[:50].any() and keep[50:].mean() > 0.99
+    sparse = pts[::20].copy()
+    sparse[:3, 2] += 5.0
+    assert not statistical_outliers(sparse)[:3].any()
+
+
+def test_ply_round_trip_keeps_utm_precision(tmp_path):
+    pts = np.array([[419342.7012, 3990808.0535, 31.9863], [419343.1, 3990809.2, 32.5]])
+    write_ply(tmp_path / "p.ply", pts, comment="crs EPSG:32654")
+    back, comments = read_ply(tmp_path / "p.ply")
+    np.testing.assert_array_equal(back, pts)
+    assert comments == ["crs EPSG:32654"]
+
+
+def test_blur_filter_and_keyframe_policy():
+    sharp = texture((360, 640), 4)
+    blurred = cv2.GaussianBlur(sharp, (0, 0), 4)
+    assert sharpness(blurred) < 0.2 * sharpness(sharp)
+    f = BlurFilter(ratio=0.5, window=11)
+    decisions = [f.accept(sharpness(sharp)) for _ in range(8)] + [f.accept(sharpness(blurred))]
+    assert all(decisions[:8]) and not decisions[-1]
+    policy = KeyframePolicy(parallax_px=30, min_survival=0.7, min_tracked_points=60)
+    assert policy.is_keyframe(31, 0.9, 200)
+    assert policy.is_keyframe(5, 0.6, 200)
+    assert policy.is_keyframe(5, 0.9, 40)
+    assert not policy.is_keyframe(5, 0.9, 200)
+
+
+def test_frames_stage_drops_blurred_frames(tmp_path):
+    import av
+
+    path = tmp_path / "v.mp4"
+    base = texture((400, 1400), 5)
+    container = av.open(str(path), "w")
+    stream = container.add_stream("libx264", rate=20)
+    stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
+    for i in range(30):
+        img = base[20:380, 10 * i : 10 * i + 640]
+        if i == 15:
+            img = cv2.GaussianBlur(img, (0, 0), 5)
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="gray")
+        for packet in stream.encode(frame):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+    result = prepare_video_frames(path, tmp_path / "frames", FrameOptions(width=320, height=180))
+    assert result.scan.kept.sum() == 29 and not result.scan.kept[15]
+    moving = result.scan.motion_px_s[1:]
+    assert np.nanmedian(moving) == pytest.approx(10 * 20 / 2, rel=0.1)  # 10 px/frame at half size
+    frames = list(iter_prepared_frames(tmp_path / "frames"))
+    assert len(frames) == 29 and frames[15].index == 16
+    assert frames[0].image.shape == (180, 320)
+
+
+def test_tracking_loss_starts_a_new_segment(terrain):
+    """Fly along x, jump 150 m (nothing in common), fly on: two segments, each a good
+    trajectory up to a similarity."""
+    from worker.pipeline.georef import umeyama
+    from worker.pipeline.ingest.camera import resolve_intrinsics
+    from worker.pipeline.slam.system import SlamOptions, run_slam
+
+    grid, dsm, _ = terrain
+    ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
+    camera = CameraModel.phantom4pro(320, 180)
+    renderer = HeightFieldRenderer(dsm, grid, ortho, camera, RenderOptions(noise_sigma=0.5))
+    r = rotation_world_from_camera(90.0, -90.0, 0.0)
+    centres = [np.array([-45.0 + 1.2 * i, -20.0, 110.0]) for i in range(36)]
+    centres += [np.array([-45.0 + 1.2 * i, 25.0, 110.0]) for i in range(36)]
+    frames = []
+    for i, c in enumerate(centres):
+        image = renderer.render(c, r).image
+        frames.append((i / 10.0, i, cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)))
+    intr = resolve_intrinsics(320, 180, exif_model="FC6310")
+    options = SlamOptions(init_parallax_px=12.0, init_min_points=40)
+    options.keyframes.parallax_px = 15.0
+    options.densify.enabled = False
+    sparse = run_slam(frames, intr, options)
+    assert sparse.stats["counts"]["lost"] == 1
+    assert sparse.segments == [0, 1]
+    truth = np.array(centres)
+    for segment in sparse.segments:
+        traj = sparse.trajectory(segment)
+        idx = np.rint(traj.t * 10).astype(int)
+        sim = umeyama(traj.positions, truth[idx])
+        err = np.linalg.norm(sim.apply(traj.positions) - truth[idx], axis=1)
+        assert len(traj) > 20 and err.max() < 0.3

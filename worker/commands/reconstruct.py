@@ -1,0 +1,114 @@
+"""`slidewatch reconstruct`: a DSM from drone video + flight log, or from an image set.
+
+    slidewatch reconstruct --video V.mp4 --log L.srt --out DIR [--method slam|sfm]
+    slidewatch reconstruct --images DIR --out DIR
+
+Writes DIR/dsm.tif, DIR/points.ply, DIR/trajectory.csv and DIR/report.json (and every
+stage's working files, see worker/pipeline/reconstruction.py); prints a one-line JSON
+summary. Unusable input exits with status 2 and a message that says what is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from worker.pipeline.errors import InputError
+from worker.pipeline.georef import METHODS as GEOREF_METHODS
+from worker.pipeline.ingest.camera import CameraOverride
+from worker.pipeline.reconstruction import (
+    METHODS,
+    STAGES,
+    ReconstructionInputs,
+    ReconstructionOptions,
+    ReconstructionResult,
+    run_stage,
+)
+
+EXIT_INPUT_ERROR = 2
+
+
+@click.command("reconstruct")
+@click.option("--video", type=click.Path(path_type=Path), help="Drone video (MP4/MOV).")
+@click.option(
+    "--log",
+    "log_path",
+    type=click.Path(path_type=Path),
+    help="Flight log: DJI SRT, AirData/PhantomHelp/Litchi CSV, or a generic CSV.",
+)
+@click.option("--images", type=click.Path(path_type=Path), help="Folder of geotagged JPEG images.")
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path))
+@click.option("--method", type=click.Choice(METHODS), default="auto", show_default=True)
+@click.option(
+    "--georef",
+    type=click.Choice(GEOREF_METHODS),
+    default="similarity",
+    show_default=True,
+    help="paper4: the paper's four-point transform (reference).",
+)
+@click.option("--resolution", type=float, default=None, help="DSM pixel size in metres.")
+@click.option("--median/--mean", default=False, help="Cell statistic of the DSM.")
+@click.option("--png/--no-png", default=False, help="Also write the grey-scale DSM PNG.")
+@click.option("--camera", default=None, help="Camera model (EXIF code or table name).")
+@click.option("--fx", type=float, default=None, help="Focal length in pixels of the video.")
+@click.option("--hfov", type=float, default=None, help="Horizontal field of view, degrees.")
+@click.option(
+    "--time-offset",
+    type=float,
+    default=None,
+    help="log time = video time + this (seconds); estimated when not given.",
+)
+@click.option("--width", type=int, default=640, show_default=True)
+@click.option("--height", type=int, default=360, show_default=True)
+@click.option(
+    "--from-stage",
+    type=click.Choice(STAGES),
+    default="ingest",
+    show_default=True,
+    help="Resume: stages before this one must have run in --out.",
+)
+def reconstruct(
+    video: Path | None,
+    log_path: Path | None,
+    images: Path | None,
+    out_dir: Path,
+    method: str,
+    georef: str,
+    resolution: float | None,
+    median: bool,
+    png: bool,
+    camera: str | None,
+    fx: float | None,
+    hfov: float | None,
+    time_offset: float | None,
+    width: int,
+    height: int,
+    from_stage: str,
+) -> None:
+    """Reconstruct a survey into a DSM; print a one-line JSON summary."""
+    options = ReconstructionOptions(method=method, time_offset_s=time_offset)
+    options.camera = CameraOverride(model=camera, fx=fx, hfov_deg=hfov)
+    if fx is not None:
+        options.camera.width = None
+    options.frames.width, options.frames.height = width, height
+    options.georef.georef.method = georef
+    options.dsm.resolution_m = resolution
+    options.dsm.statistic = "median" if median else "mean"
+    options.dsm.png = png
+    inputs = ReconstructionInputs(
+        video=str(video) if video else None,
+        log=str(log_path) if log_path else None,
+        images=str(images) if images else None,
+    )
+    results = {}
+    try:
+        for stage in STAGES[STAGES.index(from_stage) :]:
+            results[stage] = run_stage(stage, out_dir, options, inputs)
+    except InputError as exc:
+        click.echo(f"error: {exc}", err=True)
+        raise SystemExit(EXIT_INPUT_ERROR) from exc
+    seconds = sum(r.get("seconds") or 0.0 for r in results.values())
+    summary = ReconstructionResult(out_dir, results, seconds).summary()
+    click.echo(json.dumps(summary))

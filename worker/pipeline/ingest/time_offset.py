@@ -1,0 +1,316 @@
+"""The offset between the video clock and the flight-log clock, estimated rather than assumed.
+
+Convention: `log_time = video_time + offset_s`.
+
+1. A prior (`prior_offset`): 0 for DJI SRT files (their clock is the video's); the start of
+   the log's recording span matching the video's duration (AirData `isVideo`, Litchi
+   `isTakingVideo`, PhantomHelp `CAMERA.isVideo`); the video's container creation time
+   against the log's UTC clock; else the log start, with a warning and a wide search.
+2. An estimate from motion (`estimate_time_offset`): the image motion measured by
+   tracking (pixels per second; proportional to ground speed / height for a camera
+   looking down) is correlated with the log's ground speed divided by its height above
+   take-off, over offsets around the prior. The best normalised correlation wins
+   when it is high and distinct; otherwise the prior is kept and the result says the
+   offset was not observable (constant speed gives no signal).
+3. A refinement from the reconstructed trajectory (`refine_time_offset`): the offset
+   that minimises the residual of a similarity fit between camera positions and log
+   positions, searched finely around the current estimate.
+
+`check_overlap` raises a clear error when the log does not cover the video.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.flight_log import FlightLog
+
+_EARTH_RADIUS_M = 6_371_000.0
+
+
+@dataclass
+class TimeOffsetOptions:
+    search_s: float = 20.0  # half-width of the search around the prior
+    wide_search_s: float = 600.0  # when the prior is only "log start"
+    step_s: float = 0.05
+    resample_hz: float = 10.0
+    smooth_s: float = 1.0
+    min_correlation: float = 0.6
+    min_distinctness: float = 0.1  # peak minus the best score outside its own lobe
+    highpass_s: float = 10.0  # slower changes of speed are removed before correlating
+    min_overlap: float = 0.5  # share of the video the log must cover
+
+
+@dataclass
+class TimeOffset:
+    offset_s: float  # log_time = video_time + offset_s
+    prior_s: float
+    prior_source: str
+    method: str  # "prior", "motion_correlation", "trajectory_fit"
+    score: float | None = None
+    observable: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["offset_s"] = round(self.offset_s, 4)
+        d["prior_s"] = round(self.prior_s, 4)
+        if self.score is not None:
+            d["score"] = round(self.score, 4)
+        return d
+
+
+def prior_offset(
+    log: FlightLog,
+    video_duration_s: float | None = None,
+    video_creation_utc: str | None = None,
+) -> TimeOffset:
+    """The best guess before looking at any image (see the module doc)."""
+    warnings: list[str] = []
+    if log.time_base == "video":
+        return TimeOffset(0.0, 0.0, "srt", "prior")
+    segments = log.recording_segments()
+    if segments:
+        if video_duration_s:
+            start, _ = min(segments, key=lambda s: abs((s[1] - s[0]) - video_duration_s))
+        else:
+            start = segments[0][0]
+        if len(segments) > 1:
+            warnings.append(
+                f"the log has {len(segments)} recording spans; took the one starting at "
+                f"{start:.1f} s, whose length best matches the video"
+            )
+        return TimeOffset(start, start, "recording_flag", "prior", warnings=warnings)
+    epoch = log.utc_epoch
+    if video_creation_utc and epoch is not None:
+        created = datetime.fromisoformat(video_creation_utc)
+        offset = (created - epoch).total_seconds()
+        return TimeOffset(offset, offset, "creation_time", "prior", warnings=warnings)
+    warnings.append(
+        "nothing ties the video clock to the log clock (no recording flag, no UTC times): "
+        "the offset is searched over the whole log"
+    )
+    return TimeOffset(0.0, 0.0, "log_start", "prior", warnings=warnings)
+
+
+def log_ground_speed(log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
+    """(t, horizontal speed in m/s) from the log positions (local flat-earth metres)."""
+    ok = log.valid
+    t, lat, lon = log.t[ok], log.lat[ok], log.lon[ok]
+    if t.size < 3:
+        return t, np.zeros_like(t)
+    lat0 = np.radians(np.median(lat))
+    x = np.radians(lon - lon[0]) * _EARTH_RADIUS_M * np.cos(lat0)
+    y = np.radians(lat - lat[0]) * _EARTH_RADIUS_M
+    vx, vy = np.gradient(x, t), np.gradient(y, t)
+    return t, np.hypot(vx, vy)
+
+
+def _smooth(values: np.ndarray, window: int) -> np.ndarray:
+    if window <= 1:
+        return values
+    kernel = np.ones(window) / window
+    padded = np.pad(values, (window // 2, window - 1 - window // 2), mode="edge")
+    return np.convolve(padded, kernel, mode="valid")
+
+
+def _height_scale(log: FlightLog, t: np.ndarray) -> np.ndarray:
+    """Height above take-off at log times t (for speed / height), floored at 5 m."""
+    height = log.rel_alt if log.rel_alt is not None else None
+    if height is None and log.alt_ref == "takeoff":
+        height = log.alt
+    if height is None or not np.isfinite(height).any():
+        return np.ones_like(t)
+    ok = np.isfinite(height)
+    h = np.interp(t, log.t[ok], height[ok])
+    return np.maximum(h, 5.0)
+
+
+def estimate_time_offset(
+    log: FlightLog,
+    video_t: np.ndarray,
+    image_speed: np.ndarray,
+    prior: TimeOffset,
+    options: TimeOffsetOptions | None = None,
+) -> TimeOffset:
+    """Correlate image motion (px/s at video times) with log speed / height.
+
+    Returns the prior (method "prior", observable False) when the correlation is weak
+    or not distinct, with a warning that says so.
+    """
+    options = options or TimeOffsetOptions()
+    video_t = np.asarray(video_t, dtype=float)
+    image_speed = np.asarray(image_speed, dtype=float)
+    ok = np.isfinite(image_speed)
+    video_t, image_speed = video_t[ok], image_speed[ok]
+    result = TimeOffset(
+        prior.offset_s, prior.offset_s, prior.prior_source, "prior", warnings=list(prior.warnings)
+    )
+    if video_t.size < 10 or video_t[-1] - video_t[0] < 5.0:
+        result.warnings.append("video too short to estimate the time offset from motion")
+        return result
+    step = 1.0 / options.resample_hz
+    grid = np.arange(video_t[0], video_t[-1], step)
+    window = max(1, round(options.smooth_s * options.resample_hz))
+    highpass = max(3, round(options.highpass_s * options.resample_hz))
+    visual = _smooth(np.interp(grid, video_t, image_speed), window)
+    visual = visual - _smooth(visual, highpass)
+    lt, lspeed = log_ground_speed(log)
+    if lt.size < 3:
+        result.warnings.append("the log has too few positions to estimate the time offset")
+        return result
+    lgrid = np.arange(lt[0], lt[-1], step)
+    lsignal = _smooth(np.interp(lgrid, lt, lspeed) / _height_scale(log, lgrid), window)
+    lsignal = lsignal - _smooth(lsignal, highpass)
+    if np.std(visual) < 1e-6 * max(np.mean(visual), 1e-9) or np.std(lsignal) < 1e-9:
+        result.warnings.append("constant motion: the time offset cannot be observed")
+        return result
+    half = options.wide_search_s if prior.prior_source == "log_start" else options.search_s
+    lo = prior.offset_s - half
+    hi = prior.offset_s + half
+    if prior.prior_source == "creation_time":
+        lo -= grid[-1] - grid[0]  # the stamp may be the end of the recording
+    if prior.prior_source == "log_start":
+        lo = lt[0] - grid[0] - (grid[-1] - grid[0]) * (1 - options.min_overlap)
+        hi = lt[-1] - grid[0] - (grid[-1] - grid[0]) * options.min_overlap
+    offsets = np.arange(lo, hi + options.step_s / 2, options.step_s)
+    if offsets.size == 0:
+        result.warnings.append("the log is too short for the video")
+        return result
+    scores = np.array([_correlation(grid, visual, lgrid, lsignal, d, options) for d in offsets])
+    if not np.isfinite(scores).any():
+        result.warnings.append("the log and the video do not overlap at any tested offset")
+        return result
+    best = int(np.nanargmax(scores))
+    peak = float(scores[best])
+    rival = _rival_peak(scores, best)
+    refined = _parabola(offsets, scores, best)
+    if peak < options.min_correlation or peak - rival < options.min_distinctness:
+        result.score = peak
+        result.warnings.append(
+            f"image motion and log speed correlate weakly (r = {peak:.2f}, next best "
+            f"{rival:.2f}); kept the {prior.prior_source} offset {prior.offset_s:.2f} s"
+        )
+        return result
+    result.offset_s = refined
+    result.method = "motion_correlation"
+    result.score = peak
+    result.observable = True
+    return result
+
+
+def _correlation(
+    grid: np.ndarray,
+    visual: np.ndarray,
+    lgrid: np.ndarray,
+    lsignal: np.ndarray,
+    offset: float,
+    options: TimeOffsetOptions,
+) -> float:
+    times = grid + offset
+    inside = (times >= lgrid[0]) & (times <= lgrid[-1])
+    if inside.mean() < options.min_overlap:
+        return np.nan
+    a = visual[inside]
+    b = np.interp(times[inside], lgrid, lsignal)
+    a = a - a.mean()
+    b = b - b.mean()
+    denom = np.sqrt((a * a).sum() * (b * b).sum())
+    return float((a * b).sum() / denom) if denom > 0 else np.nan
+
+
+def _rival_peak(scores: np.ndarray, best: int) -> float:
+    """Best score outside the main lobe around `best`: the lobe ends where the score
+    first falls halfway from the peak to the median score, on each side, and is then
+    doubled in width so that its own shoulders do not count as rivals."""
+    filled = np.where(np.isfinite(scores), scores, -np.inf)
+    peak = filled[best]
+    level = peak - 0.5 * (peak - float(np.nanmedian(scores)))
+    lo = best
+    while lo > 0 and filled[lo - 1] > level:
+        lo -= 1
+    hi = best
+    while hi < len(filled) - 1 and filled[hi + 1] > level:
+        hi += 1
+    lo, hi = max(0, best - 2 * (best - lo)), min(len(filled) - 1, best + 2 * (hi - best))
+    outside = np.concatenate([filled[:lo], filled[hi + 1 :]])
+    outside = outside[np.isfinite(outside)]
+    return float(outside.max()) if outside.size else -1.0
+
+
+def _parabola(x: np.ndarray, y: np.ndarray, i: int) -> float:
+    if 0 < i < len(x) - 1 and np.isfinite(y[i - 1 : i + 2]).all():
+        denom = y[i - 1] - 2 * y[i] + y[i + 1]
+        if denom < 0:
+            shift = 0.5 * (y[i - 1] - y[i + 1]) / denom
+            return float(x[i] + np.clip(shift, -1, 1) * (x[1] - x[0]))
+    return float(x[i])
+
+
+def refine_time_offset(
+    current: TimeOffset,
+    traj_t: np.ndarray,
+    residual_at: Callable[[float], float],
+    search_s: float = 1.0,
+    step_s: float = 0.02,
+) -> TimeOffset:
+    """Search offsets within ±search_s of `current` for the smallest trajectory residual.
+
+    `residual_at(offset)` returns the robust residual (metres) of the similarity fit
+    between camera positions at `traj_t` and log positions at `traj_t + offset`
+    (georef provides it). The offset is kept when the minimum is flat (no motion
+    change along the track makes it observable).
+    """
+    offsets = np.arange(current.offset_s - search_s, current.offset_s + search_s + 1e-9, step_s)
+    costs = np.array([residual_at(float(d)) for d in offsets])
+    result = TimeOffset(**{**asdict(current), "warnings": list(current.warnings)})
+    if not np.isfinite(costs).any() or traj_t.size < 4:
+        return result
+    best = int(np.nanargmin(costs))
+    refined = _parabola(offsets, -costs, best)
+    spread = float(np.nanmax(costs) - np.nanmin(costs))
+    if spread < 0.05 * float(np.nanmin(costs)) or best in (0, len(offsets) - 1):
+        result.warnings.append("trajectory fit does not constrain the time offset; kept")
+        return result
+    result.offset_s = refined
+    result.method = "trajectory_fit"
+    result.observable = True
+    result.score = float(costs[best])
+    return result
+
+
+def check_overlap(
+    log: FlightLog,
+    offset_s: float,
+    video_duration_s: float,
+    min_overlap: float = 0.5,
+    video_name: str = "the video",
+) -> float:
+    """Share of the video's duration covered by log positions; InputError below
+    `min_overlap`."""
+    ok = log.valid
+    if ok.sum() < 2:
+        raise InputError(f"{log.path}: fewer than two GPS positions")
+    t0, t1 = float(log.t[ok][0]), float(log.t[ok][-1])
+    v0, v1 = offset_s, offset_s + max(video_duration_s, 1e-9)
+    covered = max(0.0, min(t1, v1) - max(t0, v0)) / (v1 - v0)
+    if covered < min_overlap:
+        epoch = log.epoch
+        zone = f" {log.datetime_zone}" if log.datetime_zone else ""
+        span = (
+            f"{epoch.isoformat()}{zone} + {t0:.0f} to {t1:.0f} s"
+            if epoch
+            else f"{t0:.0f} to {t1:.0f} s"
+        )
+        raise InputError(
+            f"the flight log {log.path.rsplit('/', 1)[-1]} does not overlap {video_name} in "
+            f"time: the log covers {span}, the video maps to {v0:.0f} to {v1:.0f} s on the "
+            f"log clock ({covered:.0%} covered). Is it the log of the same flight?"
+        )
+    return covered

@@ -1,0 +1,188 @@
+"""Video decoding with PyAV: each frame with its presentation time, as a stream.
+
+Frame times are seconds since the presentation time of the first frame, the same
+clock as DJI SRT subtitles (whose first block starts at 0). Frames are resized by
+FFmpeg's scaler (area averaging) while decoding, so 4K video costs little memory.
+
+Unreadable input raises `InputError` naming the file: not a video, no video stream,
+codec without a decoder, nothing decodable. Damage after the first frames (a truncated
+upload) ends the stream early with a warning in `VideoReader.warnings` instead, so that
+a streaming reconstruction keeps what it has.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import av
+import numpy as np
+
+from worker.pipeline.errors import InputError
+
+
+@dataclass
+class VideoInfo:
+    path: str
+    container: str
+    codec: str
+    width: int
+    height: int
+    fps: float
+    duration_s: float | None
+    frames: int | None
+    creation_time: str | None  # ISO 8601 UTC as the container states it, or None
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class VideoFrame:
+    index: int  # index among all decoded frames (before any stride)
+    t: float  # seconds since the first frame
+    image: np.ndarray  # (H, W) uint8 grey or (H, W, 3) uint8 BGR
+
+
+def _open(path: Path) -> av.container.InputContainer:
+    name = path.name
+    if not path.is_file():
+        raise InputError(f"{name}: video not found")
+    if path.stat().st_size == 0:
+        raise InputError(f"{name}: the video file is empty")
+    try:
+        container = av.open(str(path), mode="r")
+    except av.FFmpegError as exc:
+        raise InputError(
+            f"{name}: not a readable video ({exc.strerror or exc}); is the file complete?"
+        ) from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"{name}: the file has no video stream")
+    return container
+
+
+def _creation_time(container: av.container.InputContainer) -> str | None:
+    text = container.metadata.get("creation_time") or container.streams.video[0].metadata.get(
+        "creation_time"
+    )
+    if not text:
+        return None
+    try:
+        dt = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        return None
+    if dt.tzinfo is not None:
+        dt = dt.astimezone(UTC).replace(tzinfo=None)
+    return dt.isoformat()
+
+
+def probe_video(path: Path | str) -> VideoInfo:
+    """Container, codec, size, frame rate, duration and creation time of a video."""
+    path = Path(path)
+    container = _open(path)
+    try:
+        stream = container.streams.video[0]
+        ctx = stream.codec_context
+        if ctx is None or not ctx.name:
+            raise InputError(f"{path.name}: the video codec is not supported")
+        rate = stream.average_rate or stream.guessed_rate or Fraction(30)
+        duration = None
+        if stream.duration is not None and stream.time_base is not None:
+            duration = float(stream.duration * stream.time_base)
+        elif container.duration is not None:
+            duration = container.duration / 1e6
+        frames = stream.frames or (round(duration * float(rate)) if duration else None)
+        return VideoInfo(
+            path=str(path),
+            container=container.format.name,
+            codec=ctx.name,
+            width=ctx.width,
+            height=ctx.height,
+            fps=float(rate),
+            duration_s=duration,
+            frames=frames,
+            creation_time=_creation_time(container),
+        )
+    finally:
+        container.close()
+
+
+class VideoReader:
+    """Decode a video as a stream of `VideoFrame`s (see the module doc for errors)."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+        self.info = probe_video(self.path)
+        self.warnings: list[str] = []
+        self.frames_decoded = 0
+
+    def frames(
+        self,
+        size: tuple[int, int] | None = None,
+        gray: bool = True,
+        every: int = 1,
+        start_s: float = 0.0,
+        end_s: float | None = None,
+        threads: int = 2,
+    ) -> Iterator[VideoFrame]:
+        """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h)."""
+        name = self.path.name
+        container = _open(self.path)
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        stream.codec_context.thread_count = threads
+        fmt = "gray" if gray else "bgr24"
+        width, height = size if size else (None, None)
+        first_pts: int | None = None
+        index = -1
+        time_base = stream.time_base or Fraction(1, 90000)
+        fps = self.info.fps or 30.0
+        try:
+            decoded = container.decode(stream)
+            while True:
+                try:
+                    frame = next(decoded)
+                except StopIteration:
+                    break
+                except (av.FFmpegError, EOFError) as exc:
+                    if index < 0:
+                        raise InputError(
+                            f"{name}: the video cannot be decoded ({exc}); the file is "
+                            "damaged or uses an unsupported codec"
+                        ) from None
+                    self.warnings.append(
+                        f"{name}: decoding stopped after {index + 1} frames ({exc}); "
+                        "the rest of the file is damaged or missing"
+                    )
+                    break
+                index += 1
+                pts = frame.pts
+                if pts is None:
+                    t = index / fps
+                else:
+                    if first_pts is None:
+                        first_pts = pts
+                    t = float((pts - first_pts) * time_base)
+                if t < start_s - 1e-6 or index % every:
+                    continue
+                if end_s is not None and t >= end_s:
+                    break
+                image = frame.reformat(
+                    width=width, height=height, format=fmt, interpolation="AREA"
+                ).to_ndarray()
+                self.frames_decoded += 1
+                yield VideoFrame(index=index, t=t, image=image)
+        finally:
+            container.close()
+        if index < 0:
+            raise InputError(f"{name}: the video has no decodable frame")
+
+
+def iter_frames(path: Path | str, **kwargs: Any) -> Iterator[VideoFrame]:
+    """Shorthand for `VideoReader(path).frames(**kwargs)`."""
+    return VideoReader(path).frames(**kwargs)

@@ -1,0 +1,341 @@
+"""The conventional reference: Structure-from-Motion with pycolmap and GNSS pose priors.
+
+As the paper ran OpenDroneMap on frames taken at 3 fps at a higher resolution, this
+method takes still frames (or an image set) and runs COLMAP's pipeline on 2 cores:
+
+1. SIFT on the CPU (`first_octave=0`: no upsampling, ~9x faster than COLMAP's default
+   on 640 px frames, and `max_features`), one pinhole camera with the known intrinsics;
+2. GNSS positions as pose priors in the database (local metres around the survey's
+   centre, sigmas `prior_sigma_h_m`/`prior_sigma_v_m`);
+3. sequential matching (`sequential_overlap` neighbours) plus spatial matching by the
+   priors (`spatial_neighbors`, the paper's "pre-matching neighbouring frames based on
+   Exif data");
+4. incremental mapping with the priors (`use_prior_position`, robust loss), the initial
+   pair at >= `init_min_tri_angle` degrees (the default 16 fails on video frames), the
+   focal length fixed (freeing it moved it by 16 % in the notes' tests);
+5. dense points: OpenCV SGBM on pairs of registered images (`worker.pipeline.slam.densify`,
+   at `dense_width` pixels), because COLMAP's patch-match stereo needs CUDA.
+
+The result is a `SparseMap` in UTM coordinates (one segment), like the SLAM's.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pycolmap
+
+from worker.pipeline.errors import InputError
+from worker.pipeline.georef import log_to_utm, survey_epsg
+from worker.pipeline.ingest.camera import Intrinsics
+from worker.pipeline.ingest.flight_log import FlightLog
+from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.slam.densify import DensifyOptions, densify_pair
+from worker.pipeline.slam.result import SparseMap
+
+
+@dataclass
+class SfmOptions:
+    fps: float = 3.0
+    max_width: int = 2560
+    max_features: int = 4000
+    first_octave: int | None = None  # None: -1 (upsample) below 1200 px wide, else 0
+    peak_threshold: float = 0.004  # COLMAP's 0.0067 finds too little on sand and grass
+    sequential_overlap: int = 10
+    spatial_neighbors: int = 20
+    init_min_tri_angle: float = 4.0
+    prior_sigma_h_m: float = 2.0
+    prior_sigma_v_m: float = 4.0
+    dense: bool = True
+    dense_width: int = 1280
+    min_model_images: int = 4  # smaller COLMAP models are dropped
+    min_inliers: int = 20  # to register an image (twice that for the first pair)
+    threads: int = 2
+    seed: int = 0
+
+
+def run_sfm(
+    image_paths: list[str],
+    times: list[float],
+    log: FlightLog,
+    offset_s: float,
+    intrinsics: Intrinsics,
+    work_dir: Path,
+    options: SfmOptions | None = None,
+    progress: ProgressFn = no_progress,
+) -> tuple[SparseMap, dict[str, Any]]:
+    """COLMAP SfM on the images (see the module doc): (map in UTM, report)."""
+    options = options or SfmOptions()
+    if len(image_paths) < 3:
+        raise InputError("SfM needs at least three images")
+    work_dir = Path(work_dir)
+    if work_dir.exists():
+        shutil.rmtree(work_dir)  # a re-run starts from scratch: idempotent
+    work_dir.mkdir(parents=True)
+    image_dir = Path(image_paths[0]).parent
+    if any(Path(p).parent != image_dir for p in image_paths):
+        raise InputError("the images of one survey must be in one folder")
+    names = [Path(p).name for p in image_paths]
+    time_of = dict(zip(names, times, strict=True))
+    timing: dict[str, float] = {}
+    pycolmap.set_random_seed(options.seed)
+    database = work_dir / "database.db"
+
+    t0 = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    reader.camera_params = f"{intrinsics.fx},{intrinsics.fy},{intrinsics.cx},{intrinsics.cy}"
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = options.threads
+    extraction.use_gpu = False
+    extraction.sift.max_num_features = options.max_features
+    extraction.sift.first_octave = (
+        options.first_octave
+        if options.first_octave is not None
+        else (-1 if intrinsics.width < 1200 else 0)
+    )
+    extraction.sift.max_num_orientations = 1
+    extraction.sift.peak_threshold = options.peak_threshold
+    pycolmap.extract_features(
+        database,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    timing["extract"] = time.perf_counter() - t0
+    progress(0.3)
+
+    epsg = survey_epsg(log)
+    values = log.interpolate(np.asarray(times) + offset_s)
+    alt = np.nan_to_num(values["alt"])
+    ok = np.isfinite(values["lat"]) & np.isfinite(values["lon"])
+    world = np.full((len(times), 3), np.nan)
+    world[ok] = log_to_utm(values["lon"][ok], values["lat"][ok], alt[ok], epsg)
+    if ok.sum() < 3:
+        raise InputError("fewer than three images have a GNSS position at their time")
+    origin = np.round(np.nanmean(world, axis=0))
+    prior_of = {name: world[i] - origin for i, name in enumerate(names) if ok[i]}
+    cov = np.diag(
+        [options.prior_sigma_h_m**2, options.prior_sigma_h_m**2, options.prior_sigma_v_m**2]
+    )
+    db = pycolmap.Database.open(database)
+    try:
+        # COLMAP writes WGS84 priors from EXIF GPS itself: ours (metres, from the log at
+        # the image time) replace them.
+        db.clear_pose_priors()
+        for image in db.read_all_images():
+            if image.name not in prior_of:
+                continue
+            prior = pycolmap.PosePrior()
+            prior.corr_data_id = image.data_id
+            prior.position = prior_of[image.name]
+            prior.position_covariance = cov
+            prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
+            db.write_pose_prior(prior)
+    finally:
+        db.close()
+
+    t0 = time.perf_counter()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.threads
+    matching.use_gpu = False
+    sequential = pycolmap.SequentialPairingOptions()
+    sequential.overlap = options.sequential_overlap
+    sequential.quadratic_overlap = False
+    pycolmap.match_sequential(
+        database, matching_options=matching, pairing_options=sequential, device=pycolmap.Device.cpu
+    )
+    if options.spatial_neighbors > 0:
+        spatial = pycolmap.SpatialPairingOptions()
+        spatial.max_num_neighbors = options.spatial_neighbors
+        spatial.ignore_z = False
+        spatial.max_distance = 1e9
+        pycolmap.match_spatial(
+            database, matching_options=matching, pairing_options=spatial, device=pycolmap.Device.cpu
+        )
+    timing["match"] = time.perf_counter() - t0
+    progress(0.55)
+
+    t0 = time.perf_counter()
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.use_prior_position = True
+    mapping.use_robust_loss_on_prior_position = True
+    mapping.ba_refine_focal_length = False
+    mapping.ba_refine_principal_point = False
+    mapping.ba_refine_extra_params = False
+    mapping.num_threads = options.threads
+    mapping.random_seed = options.seed
+    mapping.multiple_models = True
+    mapping.mapper.init_min_tri_angle = options.init_min_tri_angle
+    mapping.mapper.init_min_num_inliers = options.min_inliers * 2
+    mapping.mapper.abs_pose_min_num_inliers = options.min_inliers
+    mapping.min_model_size = options.min_model_images
+    mapping.mapper.abs_pose_refine_focal_length = False
+    mapping.mapper.abs_pose_refine_extra_params = False
+    (work_dir / "model").mkdir()
+    models = pycolmap.incremental_mapping(database, image_dir, work_dir / "model", mapping)
+    timing["map"] = time.perf_counter() - t0
+    if not models:
+        raise InputError("SfM could not reconstruct the images (too little overlap or texture)")
+    recs = sorted(models.values(), key=lambda r: -r.num_reg_images())
+    recs = [r for r in recs if r.num_reg_images() >= options.min_model_images] or recs[:1]
+    progress(0.8)
+
+    sparse, kf_names = _to_sparse_map(recs, time_of, origin, intrinsics)
+    rec = recs[0]
+    t0 = time.perf_counter()
+    if options.dense:
+        _densify(sparse, kf_names, image_dir, intrinsics, options)
+    timing["dense"] = time.perf_counter() - t0
+    report = {
+        "images": len(names),
+        "models": len(recs),
+        "registered": int(sum(r.num_reg_images() for r in recs)),
+        "points3D": int(sum(r.num_points3D() for r in recs)),
+        "mean_reprojection_error_px": round(float(rec.compute_mean_reprojection_error()), 4),
+        "timing_s": {k: round(v, 3) for k, v in timing.items()},
+    }
+    sparse.stats = {"sfm": report}
+    progress(1.0)
+    return sparse, report
+
+
+def _to_sparse_map(
+    recs: list[pycolmap.Reconstruction],
+    time_of: dict[str, float],
+    origin: np.ndarray,
+    intrinsics: Intrinsics,
+) -> tuple[SparseMap, list[str]]:
+    """Registered images as keyframes, one segment per COLMAP model, each in time
+    order (and the image names in keyframe order). Point ids are made unique."""
+    kf_seg, kf_t, kf_r, kf_tr, names = [], [], [], [], []
+    obs_kf, obs_pt, obs_uv = [], [], []
+    pt_id, pt_xyz, pt_seg = [], [], []
+    for seg, rec in enumerate(recs):
+        base = seg * 10_000_000
+        images = sorted(
+            (rec.image(i) for i in rec.reg_image_ids()), key=lambda im: time_of[im.name]
+        )
+        for image in images:
+            k = len(kf_t)
+            pose = image.cam_from_world()
+            r = np.array(pose.rotation.matrix())
+            kf_r.append(r)
+            # Moving the world by +origin: t' = t - R origin.
+            kf_tr.append(np.asarray(pose.translation) - r @ origin)
+            kf_t.append(time_of[image.name])
+            kf_seg.append(seg)
+            names.append(image.name)
+            for p2 in image.points2D:
+                if p2.has_point3D():
+                    obs_kf.append(k)
+                    obs_pt.append(base + p2.point3D_id)
+                    obs_uv.append(p2.xy)
+        for pid in sorted(rec.point3D_ids()):
+            pt_id.append(base + pid)
+            pt_xyz.append(np.asarray(rec.point3D(pid).xyz) + origin)
+            pt_seg.append(seg)
+    n = len(kf_t)
+    r = np.array(kf_r).reshape(n, 3, 3)
+    tr = np.array(kf_tr).reshape(n, 3)
+    t = np.array(kf_t)
+    seg_arr = np.array(kf_seg, dtype=np.int32)
+    order = np.argsort(np.array(pt_id, dtype=np.int64))
+    sparse = SparseMap(
+        k=intrinsics.K,
+        size=(intrinsics.width, intrinsics.height),
+        kf_id=np.arange(n, dtype=np.int32),
+        kf_segment=seg_arr,
+        kf_t=t,
+        kf_r=r,
+        kf_tr=tr,
+        obs_kf=np.array(obs_kf, dtype=np.int32),
+        obs_point=np.array(obs_pt, dtype=np.int64),
+        obs_uv=np.array(obs_uv, dtype=np.float32).reshape(-1, 2),
+        point_id=np.array(pt_id, dtype=np.int64)[order],
+        point_xyz=np.array(pt_xyz).reshape(-1, 3)[order],
+        point_segment=np.array(pt_seg, dtype=np.int32)[order],
+        fr_t=t.copy(),
+        fr_segment=seg_arr.copy(),
+        fr_r=r.copy(),
+        fr_tr=tr.copy(),
+        fr_is_kf=np.ones(n, bool),
+        fr_ref_kf=np.arange(n, dtype=np.int32),
+        fr_rel_r=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+        fr_rel_t=np.zeros((n, 3)),
+    )
+    return sparse, names
+
+
+def _densify(
+    sparse: SparseMap,
+    kf_names: list[str],
+    image_dir: Path,
+    intrinsics: Intrinsics,
+    options: SfmOptions,
+) -> None:
+    """SGBM between each image and the neighbour whose baseline is nearest to the
+    target ratio of the depth."""
+    dense_opts = DensifyOptions()
+    scale = min(1.0, options.dense_width / intrinsics.width)
+    size = (round(intrinsics.width * scale), round(intrinsics.height * scale))
+    k = intrinsics.scaled(*size).K
+    centres = sparse.kf_centres()
+    cache: dict[int, np.ndarray] = {}
+
+    def gray(i: int) -> np.ndarray:
+        if i not in cache:
+            img = cv2.imread(str(image_dir / kf_names[i]), cv2.IMREAD_GRAYSCALE)
+            cache[i] = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+            if len(cache) > 8:
+                cache.pop(next(iter(cache)))
+        return cache[i]
+
+    chunks = []
+    n = len(centres)
+    for a in range(n):
+        sel = sparse.obs_kf == a
+        xyz = sparse.point_xyz[np.searchsorted(sparse.point_id, sparse.obs_point[sel])]
+        z = (xyz - centres[a]) @ sparse.kf_r[a][2]
+        z = z[z > 0]
+        if z.size < 20:
+            continue
+        depth = float(np.median(z))
+        best, best_score = None, np.inf
+        for b in range(max(0, a - 6), min(n, a + 7)):
+            if b == a or sparse.kf_segment[b] != sparse.kf_segment[a]:
+                continue
+            ratio = np.linalg.norm(centres[b] - centres[a]) / depth
+            if dense_opts.min_baseline_ratio <= ratio <= dense_opts.max_baseline_ratio:
+                score = abs(np.log(ratio / dense_opts.target_baseline_ratio))
+                if score < best_score:
+                    best, best_score = b, score
+        if best is None:
+            continue
+        lo, hi = np.percentile(z, [2, 98])
+        pts = densify_pair(
+            gray(a),
+            gray(best),
+            k,
+            (sparse.kf_r[a], sparse.kf_tr[a]),
+            (sparse.kf_r[best], sparse.kf_tr[best]),
+            (lo, hi),
+            dense_opts,
+        )
+        if len(pts):
+            baseline = float(np.linalg.norm(centres[best] - centres[a]))
+            chunks.append((a, best, pts, baseline))
+    if chunks:
+        sparse.dense_kf = np.concatenate([np.full(len(c[2]), c[0], np.int32) for c in chunks])
+        sparse.dense_partner = np.concatenate([np.full(len(c[2]), c[1], np.int32) for c in chunks])
+        sparse.dense_xyz = np.concatenate([c[2] for c in chunks])
+        sparse.dense_baseline = np.concatenate([np.full(len(c[2]), c[3]) for c in chunks])

@@ -1,0 +1,607 @@
+"""The SLAM loop: one call per frame (`VisualSlam.process`), `finish` at the end.
+
+Per frame: KLT tracking; while initialising, wait for enough parallax against a
+reference frame, then essential matrix (USAC MAGSAC), relative pose and two-view
+triangulation; while tracking, the camera pose from the tracked map points (PnP from
+the constant-velocity prediction, RANSAC only when that fails) and the keyframe policy.
+
+Per keyframe: triangulate tracks seen by an older keyframe of the window with enough
+ray angle, windowed bundle adjustment (the newest `ba_window` keyframes free, up to
+`ba_fixed` older ones fixed; the first two keyframes of a segment stay fixed and set its
+scale), cull points that reproject badly, detect new corners, and densify the keyframes
+that have left the window with SGBM against the partner whose baseline is closest to
+`target_baseline_ratio` of the depth.
+
+When too few map points are tracked, the segment ends and a new one initialises from
+the current frame ("recovery": segments are placed on the ground independently by the
+georeferencing, which needs no visual overlap between them).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from worker.pipeline.frames import KeyframePolicy
+from worker.pipeline.ingest.camera import Intrinsics
+from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
+from worker.pipeline.slam.densify import DensifyOptions, densify_pair
+from worker.pipeline.slam.geometry import camera_center, project, rays_world, triangulate_midpoint
+from worker.pipeline.slam.result import SparseMap
+from worker.pipeline.slam.tracker import KltTracker, TrackerOptions
+
+
+@dataclass
+class SlamOptions:
+    tracker: TrackerOptions = field(default_factory=TrackerOptions)
+    keyframes: KeyframePolicy = field(default_factory=KeyframePolicy)
+    densify: DensifyOptions = field(default_factory=DensifyOptions)
+    init_parallax_px: float = 25.0
+    init_min_points: int = 80
+    init_min_angle_deg: float = 1.0
+    init_max_frames: int = 150
+    min_tri_angle_deg: float = 1.0
+    max_reproj_px: float = 2.5
+    cull_reproj_px: float = 4.0
+    pnp_min_points: int = 25
+    ba_window: int = 8
+    ba_fixed: int = 4
+    ba_iterations: int = 10
+    ba_loss_px: float = 2.0
+    ba_max_points: int = 1000  # the most-observed points of the window take part
+    triangulation_window: int = 10
+    min_segment_keyframes: int = 4
+    keyframe_images: int = 16
+    seed: int = 0
+
+
+@dataclass
+class _Keyframe:
+    index: int  # position in VisualSlam.keyframes
+    segment: int
+    frame_index: int
+    t: float
+    r: np.ndarray  # R_cw
+    tr: np.ndarray  # t_cw
+    ids: np.ndarray
+    uv: np.ndarray
+    image: np.ndarray | None
+    densified: bool = False
+
+
+@dataclass
+class _Frame:
+    t: float
+    segment: int
+    r: np.ndarray
+    tr: np.ndarray
+    is_kf: bool
+    ref_kf: int
+    rel_r: np.ndarray
+    rel_t: np.ndarray
+
+
+@dataclass
+class _Reference:
+    t: float
+    frame_index: int
+    image: np.ndarray
+    ids: np.ndarray
+    uv: np.ndarray
+    frames: int = 0
+
+
+class VisualSlam:
+    """Streaming monocular SLAM for one camera (see the module doc)."""
+
+    def __init__(self, intrinsics: Intrinsics, options: SlamOptions | None = None):
+        self.options = options or SlamOptions()
+        self.k = intrinsics.K
+        self.k_inv = np.linalg.inv(self.k)
+        self.size = (intrinsics.width, intrinsics.height)
+        self.tracker = KltTracker(self.options.tracker)
+        self.keyframes: list[_Keyframe] = []
+        self.frames: list[_Frame] = []
+        self.points: dict[int, np.ndarray] = {}  # the current segment's
+        self.archived: dict[int, np.ndarray] = {}  # earlier segments' points
+        self.point_segment: dict[int, int] = {}
+        self.dense: list[tuple[int, int, np.ndarray, float]] = []
+        self.segment = -1
+        self.segment_start = 0  # index of the segment's first keyframe
+        self.state = "init"
+        self.ref: _Reference | None = None
+        self.velocity: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._cache_ids = np.empty(0, np.int64)
+        self._cache_xyz = np.empty((0, 3))
+        self.timing: dict[str, float] = {
+            k: 0.0 for k in ("track", "init", "pose", "keyframe", "ba", "densify")
+        }
+        self.counts: dict[str, int] = {
+            "frames": 0,
+            "tracked_frames": 0,
+            "keyframes": 0,
+            "lost": 0,
+            "ba_runs": 0,
+            "dense_pairs": 0,
+        }
+        self.events: list[dict[str, Any]] = []
+        cv2.setRNGSeed(self.options.seed)
+
+    # -- public -----------------------------------------------------------------------
+    def process(self, t: float, frame_index: int, gray: np.ndarray) -> bool:
+        """Feed one grey frame; returns True when the frame got a pose."""
+        self.counts["frames"] += 1
+        t0 = time.perf_counter()
+        ids, pts = self.tracker.track(gray)
+        self.timing["track"] += time.perf_counter() - t0
+        if self.state == "init":
+            t0 = time.perf_counter()
+            ok = self._initialize(t, frame_index, gray, ids, pts)
+            self.timing["init"] += time.perf_counter() - t0
+            return ok
+        t0 = time.perf_counter()
+        pose = self._track_pose(ids, pts)
+        self.timing["pose"] += time.perf_counter() - t0
+        if pose is None:
+            self._lost(t, frame_index, gray)
+            return False
+        r, tr, tracked = pose
+        self.counts["tracked_frames"] += 1
+        last = self.keyframes[-1]
+        common, ia, ib = np.intersect1d(last.ids, ids, return_indices=True)
+        parallax = (
+            float(np.median(np.linalg.norm(last.uv[ia] - pts[ib], axis=1))) if len(common) else 0.0
+        )
+        survival = len(common) / max(len(last.ids), 1)
+        if self.options.keyframes.is_keyframe(parallax, survival, tracked):
+            t0 = time.perf_counter()
+            self._add_keyframe(t, frame_index, gray, r, tr)
+            self.timing["keyframe"] += time.perf_counter() - t0
+        else:
+            self._record_frame(t, r, tr, False)
+        return True
+
+    def finish(self) -> SparseMap:
+        """Densify what is left and return the map (segments too short are dropped)."""
+        self._densify(final=True)
+        return self._build_map()
+
+    # -- initialisation -----------------------------------------------------------------
+    def _set_reference(self, t: float, frame_index: int, gray: np.ndarray) -> None:
+        self.tracker.detect(gray)
+        self.ref = _Reference(
+            t, frame_index, gray, self.tracker.ids.copy(), self.tracker.pts.copy()
+        )
+
+    def _initialize(
+        self, t: float, frame_index: int, gray: np.ndarray, ids: np.ndarray, pts: np.ndarray
+    ) -> bool:
+        o = self.options
+        if self.ref is None:
+            self._set_reference(t, frame_index, gray)
+            return False
+        ref = self.ref
+        ref.frames += 1
+        common, ia, ib = np.intersect1d(ref.ids, ids, return_indices=True)
+        if len(common) < o.init_min_points or ref.frames > o.init_max_frames:
+            self._set_reference(t, frame_index, gray)
+            return False
+        p0 = ref.uv[ia].astype(np.float64)
+        p1 = pts[ib].astype(np.float64)
+        parallax = float(np.median(np.linalg.norm(p1 - p0, axis=1)))
+        if parallax < o.init_parallax_px:
+            return False
+        e, mask = cv2.findEssentialMat(
+            p0, p1, self.k, method=cv2.USAC_MAGSAC, prob=0.999, threshold=1.0
+        )
+        if e is None or e.shape != (3, 3):
+            return False
+        _, r, tvec, mask = cv2.recoverPose(e, p0, p1, self.k, mask=mask)
+        inl = mask.ravel() > 0
+        r0, t0 = np.eye(3), np.zeros(3)
+        t1 = tvec.ravel() / max(np.linalg.norm(tvec), 1e-12)
+        xyz, good, angle = self._two_view(r0, t0, r, t1, p0, p1)
+        good &= inl
+        if good.sum() < o.init_min_points or np.median(angle[good]) < o.init_min_angle_deg:
+            if parallax > 4 * o.init_parallax_px:
+                self._set_reference(t, frame_index, gray)
+            return False
+        # Success: a new segment with two keyframes; earlier points are put aside.
+        self.archived.update(self.points)
+        self.points = {}
+        self.segment += 1
+        self.segment_start = len(self.keyframes)
+        kf0 = self._new_keyframe(ref.t, ref.frame_index, r0, t0, ref.ids, ref.uv, ref.image)
+        self._record_frame(ref.t, r0, t0, True, kf0.index)
+        for pid, x in zip(common[good].tolist(), xyz[good], strict=True):
+            self.points[pid] = x
+            self.point_segment[pid] = self.segment
+        self._refresh_cache()
+        kf1 = self._new_keyframe(t, frame_index, r, t1, ids, pts, gray)
+        self._record_frame(t, r, t1, True, kf1.index)
+        self._bundle(fix_all=True)
+        self._cull([kf0.index, kf1.index])
+        self._detect_into(kf1, gray)
+        self.state = "tracking"
+        self.ref = None
+        self.last_pose = (r.copy(), t1.copy())
+        self.velocity = None
+        self.events.append({"event": "initialised", "t": t, "segment": self.segment})
+        return True
+
+    def _two_view(self, ra, ta, rb, tb, uva, uvb):
+        """Midpoint triangulation with checks: (xyz, good mask, ray angle deg)."""
+        ca, cb = camera_center(ra, ta), camera_center(rb, tb)
+        da = rays_world(ra, self.k_inv, uva)
+        db = rays_world(rb, self.k_inv, uvb)
+        n = len(uva)
+        xyz, sa, sb, angle = triangulate_midpoint(np.tile(ca, (n, 1)), da, np.tile(cb, (n, 1)), db)
+        good = np.isfinite(xyz).all(axis=1) & (sa > 0) & (sb > 0)
+        good &= angle >= self.options.min_tri_angle_deg
+        for r, t, uv in ((ra, ta, uva), (rb, tb, uvb)):
+            proj, z = project(r, t, self.k, np.nan_to_num(xyz))
+            err = np.linalg.norm(proj - uv, axis=1)
+            good &= (z > 0) & (err < self.options.max_reproj_px)
+        return xyz, good, angle
+
+    # -- tracking -------------------------------------------------------------------------
+    def _refresh_cache(self) -> None:
+        """Sorted ids and positions of the current segment's points (tracks that
+        outlive a segment must not bring the old segment's frame into the new one)."""
+        ids = np.fromiter(self.points.keys(), dtype=np.int64, count=len(self.points))
+        order = np.argsort(ids)
+        self._cache_ids = ids[order]
+        if len(ids):
+            self._cache_xyz = np.array([self.points[i] for i in self._cache_ids.tolist()])
+        else:
+            self._cache_xyz = np.empty((0, 3))
+
+    def _track_pose(self, ids: np.ndarray, pts: np.ndarray):
+        o = self.options
+        pos = np.searchsorted(self._cache_ids, ids)
+        pos = np.clip(pos, 0, max(len(self._cache_ids) - 1, 0))
+        sel = (self._cache_ids[pos] == ids) if len(self._cache_ids) else np.zeros(len(ids), bool)
+        if sel.sum() < o.pnp_min_points:
+            return None
+        obj = self._cache_xyz[pos[sel]]
+        img = pts[sel].astype(np.float64)
+        r_prev, t_prev = self.last_pose
+        if self.velocity is not None:
+            dr, dt = self.velocity
+            r_pred, t_pred = dr @ r_prev, dr @ t_prev + dt
+        else:
+            r_pred, t_pred = r_prev, t_prev
+        rvec, _ = cv2.Rodrigues(r_pred)
+        tvec = t_pred.reshape(3, 1).copy()
+        ok, rvec, tvec = cv2.solvePnP(
+            obj,
+            img,
+            self.k,
+            None,
+            rvec,
+            tvec,
+            useExtrinsicGuess=True,
+            flags=cv2.SOLVEPNP_ITERATIVE,
+        )
+        inl = self._inliers(obj, img, rvec, tvec) if ok else np.zeros(len(obj), bool)
+        if inl.mean() < 0.6:
+            ok, rvec, tvec, idx = cv2.solvePnPRansac(
+                obj,
+                img,
+                self.k,
+                None,
+                iterationsCount=100,
+                reprojectionError=o.max_reproj_px,
+                confidence=0.999,
+                flags=cv2.SOLVEPNP_AP3P,
+            )
+            if not ok or idx is None:
+                return None
+            inl = np.zeros(len(obj), bool)
+            inl[idx.ravel()] = True
+        if inl.sum() < o.pnp_min_points:
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.k, None, rvec, tvec)
+        inl = self._inliers(obj, img, rvec, tvec)
+        if inl.sum() < o.pnp_min_points:
+            return None
+        bad_ids = ids[sel][~inl]
+        if len(bad_ids):
+            self.tracker.remove(bad_ids)
+        r = cv2.Rodrigues(rvec)[0]
+        tr = tvec.ravel()
+        self.velocity = (r @ r_prev.T, tr - (r @ r_prev.T) @ t_prev)
+        self.last_pose = (r, tr)
+        return r, tr, int(inl.sum())
+
+    def _inliers(self, obj, img, rvec, tvec) -> np.ndarray:
+        proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
+        return np.linalg.norm(proj.reshape(-1, 2) - img, axis=1) < self.options.max_reproj_px
+
+    def _lost(self, t: float, frame_index: int, gray: np.ndarray) -> None:
+        self.counts["lost"] += 1
+        self.events.append({"event": "lost", "t": t, "segment": self.segment})
+        self._densify(final=True)
+        self.state = "init"
+        self.last_pose = None
+        self.velocity = None
+        self._set_reference(t, frame_index, gray)
+
+    # -- keyframes ------------------------------------------------------------------------
+    def _new_keyframe(self, t, frame_index, r, tr, ids, uv, image) -> _Keyframe:
+        kf = _Keyframe(
+            index=len(self.keyframes),
+            segment=self.segment,
+            frame_index=frame_index,
+            t=t,
+            r=np.array(r, dtype=np.float64),
+            tr=np.array(tr, dtype=np.float64),
+            ids=np.array(ids, dtype=np.int64),
+            uv=np.array(uv, dtype=np.float64),
+            image=image,
+        )
+        self.keyframes.append(kf)
+        self.counts["keyframes"] += 1
+        return kf
+
+    def _record_frame(self, t, r, tr, is_kf: bool, kf_index: int | None = None) -> None:
+        ref = kf_index if kf_index is not None else len(self.keyframes) - 1
+        kf = self.keyframes[ref]
+        rel_r = r @ kf.r.T
+        rel_t = tr - rel_r @ kf.tr
+        self.frames.append(_Frame(t, self.segment, r.copy(), tr.copy(), is_kf, ref, rel_r, rel_t))
+
+    def _add_keyframe(self, t, frame_index, gray, r, tr) -> None:
+        kf = self._new_keyframe(t, frame_index, r, tr, self.tracker.ids, self.tracker.pts, gray)
+        self._record_frame(t, r, tr, True, kf.index)
+        self._triangulate(kf)
+        window = self._bundle()
+        self._cull(window)
+        self._detect_into(kf, gray)
+        self.last_pose = (kf.r.copy(), kf.tr.copy())
+        t0 = time.perf_counter()
+        self._densify()
+        self.timing["densify"] += time.perf_counter() - t0
+
+    def _detect_into(self, kf: _Keyframe, gray: np.ndarray) -> None:
+        self.tracker.detect(gray)
+        kf.ids = self.tracker.ids.copy()
+        kf.uv = self.tracker.pts.astype(np.float64)
+
+    def _segment_keyframes(self) -> list[_Keyframe]:
+        return self.keyframes[self.segment_start :]
+
+    def _triangulate(self, kf: _Keyframe) -> None:
+        candidates = kf.ids[~np.isin(kf.ids, self._cache_ids)]
+        older = self._segment_keyframes()[:-1][-self.options.triangulation_window :]
+        for other in older:
+            if len(candidates) == 0:
+                break
+            common, ia, _ = np.intersect1d(other.ids, candidates, return_indices=True)
+            if len(common) == 0:
+                continue
+            _, ik, _ = np.intersect1d(kf.ids, common, return_indices=True)
+            xyz, good, _ = self._two_view(other.r, other.tr, kf.r, kf.tr, other.uv[ia], kf.uv[ik])
+            for pid, x in zip(common[good].tolist(), xyz[good], strict=True):
+                self.points[pid] = x
+                self.point_segment[pid] = self.segment
+            candidates = candidates[~np.isin(candidates, common[good])]
+        self._refresh_cache()
+
+    def _bundle(self, fix_all: bool = False) -> list[int]:
+        """Windowed BA; returns the keyframe indices that took part."""
+        o = self.options
+        seg = self._segment_keyframes()
+        free = seg[-o.ba_window :]
+        before = seg[: max(0, len(seg) - o.ba_window)][-o.ba_fixed :]
+        included = before + free
+        fixed = {kf.index for kf in before}
+        fixed |= {kf.index for kf in seg[:2]}
+        if fix_all:
+            fixed = {kf.index for kf in included}
+        all_ids = np.concatenate([kf.ids for kf in included])
+        free_ids = np.unique(np.concatenate([kf.ids for kf in free]))
+        point_ids = free_ids[np.isin(free_ids, self._cache_ids)]
+        if len(point_ids) > o.ba_max_points:
+            seen = np.searchsorted(np.sort(all_ids), point_ids, side="right") - np.searchsorted(
+                np.sort(all_ids), point_ids, side="left"
+            )
+            point_ids = point_ids[np.argsort(-seen, kind="stable")[: o.ba_max_points]]
+        if len(point_ids) < 10:
+            return [kf.index for kf in included]
+        problem = BAProblem(
+            poses={kf.index: (kf.r, kf.tr) for kf in included},
+            observations={kf.index: (kf.ids, kf.uv) for kf in included},
+            points={int(p): self.points[int(p)] for p in point_ids},
+            fixed=fixed,
+        )
+        t0 = time.perf_counter()
+        poses, points, _report = bundle_adjust(
+            problem, self.k, self.size, loss_px=o.ba_loss_px, max_iterations=o.ba_iterations
+        )
+        self.timing["ba"] += time.perf_counter() - t0
+        self.counts["ba_runs"] += 1
+        for kf in included:
+            if kf.index not in fixed:
+                kf.r, kf.tr = poses[kf.index]
+        self.points.update(points)
+        self._refresh_cache()
+        return [kf.index for kf in included]
+
+    def _cull(self, kf_indices: list[int]) -> None:
+        """Remove points that reproject worse than `cull_reproj_px` in a keyframe."""
+        bad: set[int] = set()
+        for i in kf_indices:
+            kf = self.keyframes[i]
+            sel = np.isin(kf.ids, self._cache_ids)
+            ids = kf.ids[sel]
+            if len(ids) == 0:
+                continue
+            xyz = self._cache_xyz[np.searchsorted(self._cache_ids, ids)]
+            proj, z = project(kf.r, kf.tr, self.k, xyz)
+            err = np.linalg.norm(proj - kf.uv[sel], axis=1)
+            bad.update(ids[(err > self.options.cull_reproj_px) | (z <= 0)].tolist())
+        if bad:
+            for pid in bad:
+                self.points.pop(pid, None)
+                self.point_segment.pop(pid, None)
+            self.tracker.remove(np.fromiter(bad, dtype=np.int64))
+            self._refresh_cache()
+
+    # -- densification --------------------------------------------------------------------
+    def _densify(self, final: bool = False) -> None:
+        o = self.options
+        if not o.densify.enabled:
+            for kf in self.keyframes:
+                kf.image = None
+            return
+        seg = self._segment_keyframes()
+        ready = seg if final else seg[: max(0, len(seg) - o.ba_window)]
+        for kf in ready:
+            if kf.densified or kf.image is None:
+                continue
+            kf.densified = True
+            if (kf.index - self.segment_start) % max(1, o.densify.every) == 0:
+                self._densify_keyframe(kf, seg)
+        # Free images no longer needed as partners.
+        keep_from = len(seg) - o.keyframe_images - o.ba_window
+        for kf in seg[: max(0, keep_from)]:
+            kf.image = None
+        if final:
+            for kf in seg:
+                kf.image = None
+
+    def _densify_keyframe(self, kf: _Keyframe, seg: list[_Keyframe]) -> None:
+        o = self.options.densify
+        sel = np.isin(kf.ids, self._cache_ids)
+        if sel.sum() < 20:
+            return
+        xyz = self._cache_xyz[np.searchsorted(self._cache_ids, kf.ids[sel])]
+        _, z = project(kf.r, kf.tr, self.k, xyz)
+        z = z[z > 0]
+        if z.size < 20:
+            return
+        depth = float(np.median(z))
+        centre = camera_center(kf.r, kf.tr)
+        best, best_score = None, np.inf
+        for other in seg:
+            if other is kf or other.image is None:
+                continue
+            ratio = np.linalg.norm(camera_center(other.r, other.tr) - centre) / depth
+            if o.min_baseline_ratio <= ratio <= o.max_baseline_ratio:
+                score = abs(np.log(ratio / o.target_baseline_ratio))
+                if score < best_score:
+                    best, best_score = other, score
+        if best is None:
+            return
+        lo, hi = np.percentile(z, [2, 98])
+        pts = densify_pair(
+            kf.image, best.image, self.k, (kf.r, kf.tr), (best.r, best.tr), (lo, hi), o
+        )
+        if len(pts):
+            baseline = float(np.linalg.norm(camera_center(best.r, best.tr) - centre))
+            self.dense.append((kf.index, best.index, pts, baseline))
+            self.counts["dense_pairs"] += 1
+
+    # -- output ---------------------------------------------------------------------------
+    def _build_map(self) -> SparseMap:
+        o = self.options
+        counts: dict[int, int] = {}
+        for kf in self.keyframes:
+            counts[kf.segment] = counts.get(kf.segment, 0) + 1
+        keep_segments = {s for s, n in counts.items() if n >= o.min_segment_keyframes}
+        dropped = sorted(set(counts) - keep_segments)
+        kfs = [kf for kf in self.keyframes if kf.segment in keep_segments]
+        all_points = {**self.archived, **self.points}
+        new_index = {kf.index: i for i, kf in enumerate(kfs)}
+        obs_kf, obs_pt, obs_uv = [], [], []
+        point_ids = np.array(
+            sorted(
+                p for p, s in self.point_segment.items() if s in keep_segments and p in all_points
+            ),
+            np.int64,
+        )
+        for kf in kfs:
+            sel = np.isin(kf.ids, point_ids)
+            obs_kf.append(np.full(sel.sum(), new_index[kf.index], np.int32))
+            obs_pt.append(kf.ids[sel])
+            obs_uv.append(kf.uv[sel].astype(np.float32))
+        frames = [f for f in self.frames if f.segment in keep_segments]
+        dense = [d for d in self.dense if d[0] in new_index and d[1] in new_index]
+        stats = {
+            "counts": dict(self.counts),
+            "timing_s": {k: round(v, 3) for k, v in self.timing.items()},
+            "events": self.events,
+            "segments_dropped": dropped,
+        }
+
+        def stack(items, shape, dtype):
+            return np.array(items, dtype=dtype) if items else np.empty(shape, dtype)
+
+        return SparseMap(
+            k=self.k,
+            size=self.size,
+            kf_id=np.arange(len(kfs), dtype=np.int32),
+            kf_segment=stack([kf.segment for kf in kfs], (0,), np.int32),
+            kf_t=stack([kf.t for kf in kfs], (0,), np.float64),
+            kf_r=stack([kf.r for kf in kfs], (0, 3, 3), np.float64),
+            kf_tr=stack([kf.tr for kf in kfs], (0, 3), np.float64),
+            obs_kf=np.concatenate(obs_kf) if obs_kf else np.empty(0, np.int32),
+            obs_point=np.concatenate(obs_pt) if obs_pt else np.empty(0, np.int64),
+            obs_uv=np.concatenate(obs_uv) if obs_uv else np.empty((0, 2), np.float32),
+            point_id=point_ids,
+            point_xyz=stack([all_points[p] for p in point_ids.tolist()], (0, 3), np.float64),
+            point_segment=stack(
+                [self.point_segment[p] for p in point_ids.tolist()], (0,), np.int32
+            ),
+            fr_t=stack([f.t for f in frames], (0,), np.float64),
+            fr_segment=stack([f.segment for f in frames], (0,), np.int32),
+            fr_r=stack([f.r for f in frames], (0, 3, 3), np.float64),
+            fr_tr=stack([f.tr for f in frames], (0, 3), np.float64),
+            fr_is_kf=stack([f.is_kf for f in frames], (0,), bool),
+            fr_ref_kf=stack([new_index.get(f.ref_kf, -1) for f in frames], (0,), np.int32),
+            fr_rel_r=stack([f.rel_r for f in frames], (0, 3, 3), np.float64),
+            fr_rel_t=stack([f.rel_t for f in frames], (0, 3), np.float64),
+            dense_kf=np.concatenate([np.full(len(d[2]), new_index[d[0]], np.int32) for d in dense])
+            if dense
+            else np.empty(0, np.int32),
+            dense_partner=np.concatenate(
+                [np.full(len(d[2]), new_index[d[1]], np.int32) for d in dense]
+            )
+            if dense
+            else np.empty(0, np.int32),
+            dense_xyz=np.concatenate([d[2] for d in dense])
+            if dense
+            else np.empty((0, 3), np.float32),
+            dense_baseline=np.concatenate([np.full(len(d[2]), d[3]) for d in dense])
+            if dense
+            else np.empty(0),
+            stats=stats,
+        )
+
+
+def run_slam(
+    frames: Iterable[tuple[float, int, np.ndarray]],
+    intrinsics: Intrinsics,
+    options: SlamOptions | None = None,
+    progress: ProgressFn = no_progress,
+    total_frames: int | None = None,
+) -> SparseMap:
+    """Run the SLAM over (t, frame index, grey image) tuples; returns the map."""
+    slam = VisualSlam(intrinsics, options)
+    start = time.perf_counter()
+    for n, (t, index, gray) in enumerate(frames, start=1):
+        slam.process(t, index, gray)
+        if total_frames and n % 25 == 0:
+            progress(min(0.95 * n / total_frames, 0.95))
+    result = slam.finish()
+    result.stats["seconds"] = round(time.perf_counter() - start, 3)
+    progress(1.0)
+    return result
