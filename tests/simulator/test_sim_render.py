@@ -42,8 +42,9 @@ def _scene():
 
 def _first_hits(renderer, position, r_wc, pix, step):
     """Brute force: march each ray in tiny steps to its first crossing."""
-    d = renderer._world_rays(r_wc)
-    c_cr, d_cr = renderer._ray_setup(np.asarray(position, float), d)
+    rays = renderer._world_rays(r_wc)  # (east, north, up) components
+    c_cr, d_cr = renderer._ray_setup(np.asarray(position, float), rays)
+    d = np.stack(rays, axis=1)
     taus = np.arange(0.05, 60.0, step, dtype=np.float32)
     out = []
     for p in pix:
@@ -142,3 +143,8 @@ def test_render_rate_is_recorded():
     rendering = short_run().data["rendering"]
     assert rendering["frames"] == sum(s["surveys"][0]["frames"] for s in short_run().steps)
     assert 0 < rendering["cpu_ms_per_frame"] < 200
+    for step in short_run().steps:  # completed after the background render and encode
+        survey = step["surveys"][0]
+        assert survey["video_codec"] in ("libx264", "mpeg4")
+        assert 0 < survey["render"]["cpu_ms_per_frame"] < 200
+        assert survey["render"]["frames_per_second_wall_incl_encoding"] > 0

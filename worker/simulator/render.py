@@ -76,6 +76,13 @@ def sample_bilinear(img: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.n
     return out.reshape(-1)[:n].reshape(shape).astype(np.float32, copy=False)
 
 
+def _blocked(a: np.ndarray, hb: int, wb: int, b: int, fill) -> np.ndarray:
+    """`a` (h, w) as (hb, wb, b, b) blocks of b x b cells, padded with `fill`."""
+    p = np.full((hb * b, wb * b), fill, a.dtype)
+    p[: a.shape[0], : a.shape[1]] = a
+    return np.ascontiguousarray(p.reshape(hb, b, wb, b).transpose(0, 2, 1, 3))
+
+
 @dataclass(frozen=True)
 class RenderOptions:
     """How frames are rendered."""
@@ -168,7 +175,10 @@ class HeightFieldRenderer:
         # Max-map of 4 x 4 cell blocks, dilated by one block, for conservative marching.
         h4, w4 = -(-grid.height // 4), -(-grid.width // 4)
         p4 = np.pad(self.dsm, ((0, h4 * 4 - grid.height), (0, w4 * 4 - grid.width)), mode="edge")
-        m4 = p4.reshape(h4, 4, w4, 4).max(axis=(1, 3))
+        # (Pairwise maxima of strided slices: a reduction over axes (1, 3) of the 4-D
+        # view is several times slower.)
+        r4 = np.maximum(np.maximum(p4[0::4], p4[1::4]), np.maximum(p4[2::4], p4[3::4]))
+        m4 = np.maximum(np.maximum(r4[:, 0::4], r4[:, 1::4]), np.maximum(r4[:, 2::4], r4[:, 3::4]))
         k3 = np.ones((3, 3), np.uint8)
         rep = cv2.BORDER_REPLICATE
         self._max4 = cv2.dilate(m4, k3, borderType=rep)
@@ -177,20 +187,18 @@ class HeightFieldRenderer:
         # faces that way, and is only seen from that side.
         pad = np.pad(self.dsm, 1, mode="edge")
         hh, ww = self.dsm.shape
-        best = np.full(self.dsm.shape, np.inf, np.float32)
-        de = np.zeros(self.dsm.shape, np.int8)
-        dn = np.zeros(self.dsm.shape, np.int8)
-        for dr in (-1, 0, 1):
-            for dc in (-1, 0, 1):
-                if dr == 0 and dc == 0:
-                    continue
-                nb = pad[1 + dr : 1 + dr + hh, 1 + dc : 1 + dc + ww]
-                lower = nb < best
-                best = np.where(lower, nb, best)
-                de[lower] = dc
-                dn[lower] = -dr
-        self._face_e = de
-        self._face_n = dn
+        # The first strictly lowest neighbour in this order wins; its index is kept
+        # with masked copies (boolean-index assignment is much slower) and mapped to
+        # (east, north) at the end.
+        offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
+        best = pad[:hh, :ww].copy()
+        which = np.zeros(self.dsm.shape, np.int8)
+        for k, (dr, dc) in enumerate(offsets[1:], start=1):
+            nb = pad[1 + dr : 1 + dr + hh, 1 + dc : 1 + dc + ww]
+            np.copyto(which, np.int8(k), where=nb < best)
+            np.minimum(best, nb, out=best)
+        self._face_e = np.array([dc for _, dc in offsets], np.int8)[which]
+        self._face_n = np.array([-dr for dr, _ in offsets], np.int8)[which]
         # Steep sides (crown walls, scarps) carry no texture of their own in an
         # orthoimage: they get a procedural texture varying with height, and are darker.
         ex = np.abs(np.diff(self.dsm, axis=1, append=self.dsm[:, -1:]))
@@ -202,6 +210,16 @@ class HeightFieldRenderer:
         )
         self._side_noise = (self._side_noise - self._side_noise.mean()) / self._side_noise.std()
         self._max1 = cv2.dilate(self.dsm, k3, borderType=rep)
+        # Block-major copies of what the splat reads (b x b cells contiguous per block):
+        # a visible block is then copied whole instead of gathered cell by cell. Cells
+        # past the DSM edge are NaN, so their projections fail the near-plane test.
+        self._blk_z = _blocked(self.dsm, hb, wb, b, np.nan)
+        self._blk_zl = _blocked(self._min_nb, hb, wb, b, np.nan)
+        self._blk_fe = _blocked(self._face_e, hb, wb, b, 0)
+        self._blk_fn = _blocked(self._face_n, hb, wb, b, 0)
+        # Cell-centre coordinates per block column / row (same arithmetic as per cell).
+        self._blk_x = (grid.x_left + (np.arange(wb * b) + 0.5) * grid.res).reshape(wb, b)
+        self._blk_y = (grid.y_top - (np.arange(hb * b) + 0.5) * grid.res).reshape(hb, b)
         # Orthoimage pyramid (mip-map); level 0 may be finer than the DSM.
         self.ortho_factor = ortho.shape[1] / grid.width
         if abs(ortho.shape[0] / grid.height - self.ortho_factor) > 1e-9:
@@ -220,6 +238,9 @@ class HeightFieldRenderer:
         rr = ((u - camera.cx) / (w / 2)) ** 2 + ((v - camera.cy) / (w / 2)) ** 2
         vig = 1.0 - self.options.vignetting * np.clip(rr / 1.3125, 0, 1.5) ** 1.5
         self._vignette = vig.astype(np.float32)[..., None]
+        # Vignetting x exposure spelled out per channel: a (h, w, 1) factor broadcast
+        # over 3 channels runs numpy's slow short inner loop.
+        self._vig_cache: tuple[float, np.ndarray] | None = None
         rng = np.random.default_rng(noise_seed)
         if self.options.noise_sigma > 0:
             self._noise = rng.normal(0, self.options.noise_sigma, (4, h, w, 3)).astype(np.float32)
@@ -232,24 +253,27 @@ class HeightFieldRenderer:
         self.stats = RenderStats()
 
     # -- geometry helpers -------------------------------------------------------------
-    def _world_rays(self, r: np.ndarray) -> np.ndarray:
-        """World directions (n, 3) of all pixel rays for rotation r (camera z = 1)."""
+    def _world_rays(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World directions (east, north, up components, each (n,)) of all pixel rays
+        for rotation r (camera z = 1). Separate contiguous arrays: writing strided
+        columns of an (n, 3) array cost more than the arithmetic."""
         rf = r.astype(np.float32)
-        d = np.empty((self._ray_x.size, 3), np.float32)
+        out = []
         for k in range(3):
-            np.multiply(self._ray_x, rf[k, 0], out=d[:, k])
-            d[:, k] += self._ray_y * rf[k, 1]
-            d[:, k] += rf[k, 2]
-        return d
+            dk = self._ray_x * rf[k, 0]
+            dk += self._ray_y * rf[k, 1]
+            dk += rf[k, 2]
+            out.append(dk)
+        return out[0], out[1], out[2]
 
-    def _ray_setup(self, c: np.ndarray, d: np.ndarray):
+    def _ray_setup(self, c: np.ndarray, d: tuple[np.ndarray, np.ndarray, np.ndarray]):
         """Ray origins and directions in DSM pixel units (col, row) and metres (z)."""
         g = self.grid
         c_cr = np.array(
             [(c[0] - g.x_left) / g.res - 0.5, (g.y_top - c[1]) / g.res - 0.5, c[2]], np.float32
         )
         inv = np.float32(1.0 / g.res)
-        d_cr = (d[:, 0] * inv, d[:, 1] * -inv, np.ascontiguousarray(d[:, 2]))
+        d_cr = (d[0] * inv, d[1] * -inv, d[2])
         return c_cr, d_cr
 
     def _gap(self, c_cr, d_cr, tau: np.ndarray, shape: tuple | None = None) -> np.ndarray:
@@ -272,7 +296,7 @@ class HeightFieldRenderer:
         z -= hgt
         return z
 
-    def _view_box(self, c: np.ndarray, d: np.ndarray, zlo: float, zhi: float):
+    def _view_box(self, c: np.ndarray, d: tuple, zlo: float, zhi: float):
         """Row/col slices of the DSM that the frustum can see between heights zlo..zhi."""
         g = self.grid
         h, w = self.camera.height, self.camera.width
@@ -285,7 +309,7 @@ class HeightFieldRenderer:
                 [h * w - 1],
             ]
         )
-        db = d[border]
+        db = np.stack([d[0][border], d[1][border], d[2][border]], axis=1)
         if np.any(db[:, 2] > -1e-3):
             return slice(0, g.height), slice(0, g.width)
         pts = []
@@ -335,7 +359,7 @@ class HeightFieldRenderer:
         zlo, zhi = self._box_heights(rows, cols)
 
         # Pass 1: splat the DSM cells in view into a depth buffer.
-        down = -d[:, 2]
+        down = -d[2]
         zbuf = np.full(h * w, np.inf, np.float32)
         stride = 1
         if rows.stop > rows.start and cols.stop > cols.start:
@@ -393,10 +417,14 @@ class HeightFieldRenderer:
             self.stats.marched_rays += int(march_idx.size)
         a[~good] = b[~good] = np.float32(opt.near_m)
         fa[~good], fb[~good] = 1.0, -1.0
-        tau = self._refine(c_cr, d_cr, a, b, fa, fb, (h, w))
+        tau, f_end, moved = self._refine(c_cr, d_cr, a, b, fa, fb, (h, w))
+        # The gap at the final tau: known already where the last step left tau as it
+        # was (most rays), computed for the others (samples do not depend on layout).
+        mv = np.flatnonzero(moved)
+        if mv.size:
+            f_end[mv] = self._gap(c_cr, tuple(x[mv] for x in d_cr), tau[mv])
         # Where the secant has not converged (steep or folded surface in the bracket),
         # and for the marched rays, use the bracketing method.
-        f_end = self._gap(c_cr, d_cr, tau, (h, w))
         converged = np.abs(f_end) < np.float32(0.05 * g.res)
         careful = np.flatnonzero(good & ~(simple & converged))
         if careful.size:
@@ -441,19 +469,25 @@ class HeightFieldRenderer:
                 ((c_cr[0]) + t_hit * d_cr[0]).reshape(h, w),
                 ((c_cr[1]) + t_hit * d_cr[1]).reshape(h, w),
             )
-            if np.any(steep > 0):
-                zh = (np.float32(c[2]) + t_hit * d_cr[2]).reshape(h, w)
-                hx = (col + row).astype(np.float32) * np.float32(self._ortho_res * 2.0)
+            # Only the (few) pixels on steep sides: elsewhere the factor is exactly 1.
+            sp = np.flatnonzero(steep.ravel() > 0)
+            if sp.size:
+                st = steep.ravel()[sp]
+                zh = np.float32(c[2]) + t_hit[sp] * d_cr[2][sp]
+                hx = (col.ravel()[sp] + row.ravel()[sp]).astype(np.float32) * np.float32(
+                    self._ortho_res * 2.0
+                )
                 nz = sample_bilinear(
                     self._side_noise, np.mod(hx, 255.0), np.mod(zh * np.float32(3.0), 255.0)
                 )
-                f = 1.0 - 0.3 * steep + 0.3 * steep * np.clip(nz, -2.0, 2.0)
-                rgb *= f[..., None]
+                f = 1.0 - 0.3 * st + 0.3 * st * np.clip(nz, -2.0, 2.0)
+                flat = rgb.reshape(n, 3)
+                flat[sp] *= f[:, None]
         sky = ~hitmask.reshape(h, w)
         if sky.any():
             rgb[sky] = SKY_RGB
             self.stats.sky_pixels += int(sky.sum())
-        rgb *= self._vignette * np.float32(exposure)
+        rgb *= self._vignette_for(exposure)
         if self._noise is not None:
             rgb += self._noise[frame_index % len(self._noise)]
         rgb += 0.5
@@ -467,10 +501,17 @@ class HeightFieldRenderer:
         if not with_geometry:
             return Frame(image=image)
         t64 = t_hit.astype(np.float64)
-        dd = d.astype(np.float64)
+        dd = np.stack(d, axis=1).astype(np.float64)
         hit = (c[None, :] + t64[:, None] * dd).reshape(h, w, 3)
         hit[sky] = np.nan
         return Frame(image=image, depth=tau.reshape(h, w), hit=hit)
+
+    def _vignette_for(self, exposure: float) -> np.ndarray:
+        """Vignetting x exposure as an (h, w, 3) factor, kept for the survey's exposure."""
+        if self._vig_cache is None or self._vig_cache[0] != exposure:
+            f = self._vignette * np.float32(exposure)
+            self._vig_cache = (exposure, np.ascontiguousarray(np.repeat(f, 3, axis=2)))
+        return self._vig_cache[1]
 
     @staticmethod
     def _level_coords(col: np.ndarray, row: np.ndarray, level: int):
@@ -534,58 +575,73 @@ class HeightFieldRenderer:
             1,
         ).astype(int)
         xs_all, ys_all, zs_all, zl_all, fe_all, fn_all = [], [], [], [], [], []
+        cz32 = np.float32(c[2])
         for s_val, u_val in sorted(set(zip(stride[visible], up[visible], strict=True))):
             sel = visible & (stride == s_val) & (up == u_val)
             bi_s, bj_s = gi[sel], gj[sel]
-            if u_val > 1:
-                offs = (np.arange(b * u_val) + 0.5) / u_val - 0.5
-            else:
-                offs = np.arange(0, b, s_val, dtype=np.float64)
+            if u_val == 1:
+                # Every s-th cell of whole blocks, read from the block-major copies
+                # (cells past the DSM edge are NaN and fail the near-plane test below).
+                nb = bi_s.size
+                m = -(-b // s_val)
+                shape3 = (nb, m, m)
+                zs_all.append((self._blk_z[bi_s, bj_s][:, ::s_val, ::s_val] - cz32).ravel())
+                zl_all.append((self._blk_zl[bi_s, bj_s][:, ::s_val, ::s_val] - cz32).ravel())
+                fe_all.append(self._blk_fe[bi_s, bj_s][:, ::s_val, ::s_val].ravel())
+                fn_all.append(self._blk_fn[bi_s, bj_s][:, ::s_val, ::s_val].ravel())
+                xb = (self._blk_x[bj_s][:, ::s_val] - c[0]).astype(np.float32)
+                yb = (self._blk_y[bi_s][:, ::s_val] - c[1]).astype(np.float32)
+                xs_all.append(np.broadcast_to(xb[:, None, :], shape3).ravel())
+                ys_all.append(np.broadcast_to(yb[:, :, None], shape3).ravel())
+                continue
+            offs = (np.arange(b * u_val) + 0.5) / u_val - 0.5
             rr = (bi_s * b)[:, None, None] + offs[None, :, None]
             cc = (bj_s * b)[:, None, None] + offs[None, None, :]
             rr, cc = np.broadcast_arrays(rr, cc)
             rr, cc = rr.ravel(), cc.ravel()
             ok = (rr > -0.5) & (rr < g.height - 0.5) & (cc > -0.5) & (cc < g.width - 0.5)
             rr, cc = rr[ok], cc[ok]
-            if u_val > 1:
-                zs = sample_bilinear(self.dsm, cc, rr)
-                zl = sample_bilinear(self._min_nb, cc, rr)
-                ri_ = np.clip(np.rint(rr), 0, g.height - 1).astype(np.intp)
-                ci_ = np.clip(np.rint(cc), 0, g.width - 1).astype(np.intp)
-            else:
-                ri_, ci_ = rr.astype(np.intp), cc.astype(np.intp)
-                zs = self.dsm[ri_, ci_]
-                zl = self._min_nb[ri_, ci_]
+            zs = sample_bilinear(self.dsm, cc, rr)
+            zl = sample_bilinear(self._min_nb, cc, rr)
+            ri_ = np.clip(np.rint(rr), 0, g.height - 1).astype(np.intp)
+            ci_ = np.clip(np.rint(cc), 0, g.width - 1).astype(np.intp)
             fe_all.append(self._face_e[ri_, ci_])
             fn_all.append(self._face_n[ri_, ci_])
             xs_all.append((g.x_left + (cc + 0.5) * g.res - c[0]).astype(np.float32))
             ys_all.append((g.y_top - (rr + 0.5) * g.res - c[1]).astype(np.float32))
-            zs_all.append(zs.astype(np.float32) - np.float32(c[2]))
-            zl_all.append(zl.astype(np.float32) - np.float32(c[2]))
+            zs_all.append(zs.astype(np.float32) - cz32)
+            zl_all.append(zl.astype(np.float32) - cz32)
         if not xs_all:
             return 1
         xs = np.concatenate(xs_all)
         ys = np.concatenate(ys_all)
         dz = np.concatenate(zs_all)
-        dzl = np.concatenate(zl_all)
-        fe = np.concatenate(fe_all)
-        fn = np.concatenate(fn_all)
         rf = r.astype(np.float32)
         zc = rf[0, 2] * xs + rf[1, 2] * ys + rf[2, 2] * dz
+        # Samples behind the near plane (or past the DSM edge: NaN) are not dropped
+        # here but masked at the end: filtering seven arrays cost more than projecting
+        # the few extra points.
         ok = zc > opt.near_m
-        xs, ys, dz, dzl, zc, fe, fn = xs[ok], ys[ok], dz[ok], dzl[ok], zc[ok], fe[ok], fn[ok]
-        xc = rf[0, 0] * xs + rf[1, 0] * ys + rf[2, 0] * dz
-        yc = rf[0, 1] * xs + rf[1, 1] * ys + rf[2, 1] * dz
-        u, v = self._to_pixels(xc, yc, zc)
-        # Steep sides (crown walls, scarps) fall between samples: splat each sample as
-        # the vertical column below it, down to its lowest neighbour, at about one
-        # sample per pixel of the column's projected length. The column lies inside
-        # the solid, so its depths never hide a surface that is in front.
-        drop = dz - dzl
-        # (xs, ys are sample minus camera: the side is seen if the camera lies on the
-        # side of the lowest neighbour.)
-        facing = (fe * xs + fn * ys) < 0
-        steep = np.flatnonzero((drop > 2.0 * g.res) & facing)
+        with np.errstate(all="ignore"):
+            xc = rf[0, 0] * xs + rf[1, 0] * ys + rf[2, 0] * dz
+            yc = rf[0, 1] * xs + rf[1, 1] * ys + rf[2, 1] * dz
+            u, v = self._to_pixels(xc, yc, zc)
+            # Steep sides (crown walls, scarps) fall between samples: splat each sample
+            # as the vertical column below it, down to its lowest neighbour, at about
+            # one sample per pixel of the column's projected length. The column lies
+            # inside the solid, so its depths never hide a surface that is in front.
+            drop = dz - np.concatenate(zl_all)
+            # (xs, ys are sample minus camera: the side is seen if the camera lies on
+            # the side of the lowest neighbour.)
+            cand = np.flatnonzero((drop > 2.0 * g.res) & ok)
+            fe = np.concatenate(fe_all)[cand]
+            fn = np.concatenate(fn_all)[cand]
+            steep = cand[(fe * xs[cand] + fn * ys[cand]) < 0]
+            iu = np.floor(u + 0.5).astype(np.int32)
+            iv = np.floor(v + 0.5).astype(np.int32)
+        inside = ok & (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
+        pix = iv[inside] * w + iu[inside]
+        depth = zc[inside]
         if steep.size:
             xb = xc[steep] - rf[2, 0] * drop[steep]
             yb = yc[steep] - rf[2, 1] * drop[steep]
@@ -606,15 +662,14 @@ class HeightFieldRenderer:
                 ycol = yc[s_idx] + (yb[rep] - yc[s_idx]) * frac
                 zcol = zc[s_idx] + (zb[rep] - zc[s_idx]) * frac
                 ucol, vcol = self._to_pixels(xcol, ycol, zcol)
-                u = np.concatenate([u, ucol])
-                v = np.concatenate([v, vcol])
-                zc = np.concatenate([zc, zcol])
+                iuc = np.floor(ucol + 0.5).astype(np.int32)
+                ivc = np.floor(vcol + 0.5).astype(np.int32)
+                inc = (iuc >= 0) & (iuc < w) & (ivc >= 0) & (ivc < h)
+                pix = np.concatenate([pix, ivc[inc] * w + iuc[inc]])
+                depth = np.concatenate([depth, zcol[inc]])
                 self.stats.extra["last_column_points"] = total
-        iu = np.floor(u + 0.5).astype(np.int32)
-        iv = np.floor(v + 0.5).astype(np.int32)
-        inside = (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
-        np.minimum.at(zbuf, iv[inside] * w + iu[inside], zc[inside])
-        self.stats.extra["last_splat_points"] = int(xs.size)
+        np.minimum.at(zbuf, pix, depth)
+        self.stats.extra["last_splat_points"] = int(np.count_nonzero(ok))
         return int(stride[visible].max()) if visible.any() else 1
 
     def _probe(self, c_cr, d_cr, idx, a, b, b_end, fa, fb, good, k: int = 24) -> None:
@@ -815,22 +870,34 @@ class HeightFieldRenderer:
     def _refine(self, c_cr, d_cr, a, b, fa, fb, shape=None):
         """The crossing inside brackets with fa > 0 >= fb: secant iterations on the last
         two points, kept inside the bracket (converges in 2-3 steps on the bilinear
-        surface; the bracket makes it safe)."""
+        surface; the bracket makes it safe). Returns tau, the gap at the tau before the
+        last step, and where that step moved tau (elsewhere the gap is the one at tau).
+        """
         t_prev, f_prev = b, fb
         t = self._secant(a, b, fa, fb)
+        f = np.full_like(t, np.nan)
+        moved = np.ones(t.shape, bool)
         for _ in range(self.options.refine_iterations):
             f = self._gap(c_cr, d_cr, t, shape)
             denom = f - f_prev
-            ok = np.abs(denom) > 1e-9
-            step = np.divide(f * (t - t_prev), denom, out=np.zeros_like(f), where=ok)
+            # Masked ufuncs (divide(where=...), clip with array bounds) are several
+            # times slower than plain ones: divide everywhere, then zero the steps
+            # with a vanishing denominator; clip as max then min (what clip does).
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = f * (t - t_prev)
+                step /= denom
+            step[np.abs(denom) <= 1e-9] = 0.0
             t_new = t - step
-            np.clip(t_new, a, b, out=t_new)
+            np.maximum(t_new, a, out=t_new)
+            np.minimum(t_new, b, out=t_new)
+            moved = t_new != t
             t_prev, f_prev, t = t, f, t_new
-        return t
+        return t, f, moved
 
     @staticmethod
     def _secant(a, b, fa, fb):
         denom = fa - fb
-        t = np.divide(fa, denom, out=np.full_like(fa, 0.5), where=denom > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(denom > 0, fa / denom, np.float32(0.5))
         np.clip(t, 0.0, 1.0, out=t)
         return a + (b - a) * t

@@ -10,9 +10,11 @@ paper on one step's DSM, and `manifest.json` describing all of it.
 from __future__ import annotations
 
 import platform
+import shutil
 import tempfile
 import time
 import zlib
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -125,6 +127,35 @@ def simulate_scenario(
         raise ValueError("steps must be at least 1")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix="slidewatch-sim-"))
+    workers = opts.workers or default_workers()
+    try:
+        # The render workers start first: their interpreters load while this one
+        # builds the scene.
+        with (
+            FramePool(workers if opts.survey != "none" else 1, scratch) as pool,
+            _TruthWriter() as writer,
+        ):
+            manifest = _simulate(spec, out, opts, n_steps, workers, pool, writer, progress)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    progress(1.0)
+    return manifest
+
+
+def _simulate(
+    spec,
+    out: Path,
+    opts: SimulationOptions,
+    n_steps: int,
+    workers: int,
+    pool: FramePool,
+    writer: _TruthWriter,
+    progress: ProgressFn,
+) -> Manifest:
+    """The body of `simulate_scenario`: surveys are rendered and encoded in the
+    background (`FramePool.submit`) and truth rasters written in another thread
+    (`_TruthWriter`) while this thread goes on with the next step."""
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
 
@@ -208,183 +239,183 @@ def simulate_scenario(
     mask_cum = np.zeros(grid.shape, np.uint8)
     per_event: list[dict] = []
     render_total = RenderRun()
-    scratch = Path(tempfile.mkdtemp(prefix="slidewatch-sim-"))
-    workers = opts.workers or default_workers()
     dsm_by_step: dict[int, np.ndarray] = {}
+    # Per survey: (step, flight, a function that waits for its background render and
+    # returns the render's wall seconds and the fields to complete its record with).
+    finishers: list = []
     t_truth = t_render = t_logs = 0.0
-    with FramePool(workers if opts.survey != "none" else 1, scratch) as pool:
-        for k in range(1, n_steps + 1):
-            step_dir = out / f"step{k}"
-            truth_dir = step_dir / "truth"
+    for k in range(1, n_steps + 1):
+        step_dir = out / f"step{k}"
+        truth_dir = step_dir / "truth"
+        t0 = time.perf_counter()
+        step_rec: dict = {
+            "index": k,
+            "name": f"step{k}",
+            "date_local": (first_local + timedelta(days=(k - 1) * opts.days_between_steps))
+            .date()
+            .isoformat(),
+            "truth": {},
+            "events": [],
+        }
+        if k > 1:
+            scene, change = advance(
+                scene,
+                spec.slides(k, n_steps),
+                spec.nuisance,
+                rng_for(opts.seed, "step", k),
+                dsm_before=dsm,
+            )
+            dsm, canopy = scene.compose()
+            mask_cum = np.where(change.mask > 0, change.mask, mask_cum).astype(np.uint8)
+            dem = scene.dem()
+            for i, res in enumerate(change.slides, start=1):
+                rec = res.summary()
+                sel = change.events == i
+                file_delta = float((dem[sel].astype(np.float64) - dem_prev[sel]).sum())
+                rec["index_in_events_raster"] = i
+                rec["step"] = k
+                rec["relative_volume_error_from_dem_files"] = float(
+                    f"{abs(file_delta) * grid.cell_area / res.depleted_m3:.3e}"
+                )
+                rec["mask_area_m2"] = round(float(sel.sum() * grid.cell_area), 4)
+                step_rec["events"].append(rec)
+                per_event.append(
+                    {
+                        "step": k,
+                        "name": res.spec.name,
+                        "depleted_m3": rec["depleted_m3"],
+                        "relative_error": rec["relative_volume_error"],
+                        "relative_error_from_dem_files": rec[
+                            "relative_volume_error_from_dem_files"
+                        ],
+                    }
+                )
+            step_rec["nuisance"] = change.nuisance
+            step_rec["fallen_trees"] = change.fallen_trees
+            step_rec["vanished_trees"] = change.vanished_trees
+            step_rec["truth"]["mask"] = _rel(
+                writer.write(
+                    truth_dir / "mask.tif",
+                    change.mask,
+                    grid,
+                    frame,
+                    MASK_NODATA,
+                    "landslide mask since the previous step",
+                ),
+                out,
+            )
+            step_rec["truth"]["mask_since_step1"] = _rel(
+                writer.write(
+                    truth_dir / "mask_since_step1.tif",
+                    mask_cum,
+                    grid,
+                    frame,
+                    MASK_NODATA,
+                    "landslide mask since step 1",
+                ),
+                out,
+            )
+            step_rec["truth"]["events"] = _rel(
+                writer.write(
+                    truth_dir / "events.tif",
+                    change.events,
+                    grid,
+                    frame,
+                    None,
+                    "1-based index of the step's event in manifest events",
+                ),
+                out,
+            )
+            dem_prev = dem
+        step_rec["truth"]["dsm"] = _rel(
+            writer.write(
+                truth_dir / "dsm.tif",
+                dsm,
+                grid,
+                frame,
+                DSM_NODATA,
+                "true DSM (surface incl. vegetation), m",
+            ),
+            out,
+        )
+        step_rec["truth"]["dem"] = _rel(
+            writer.write(
+                truth_dir / "dem.tif",
+                scene.dem(),
+                grid,
+                frame,
+                DSM_NODATA,
+                "true bare-earth DEM, m",
+            ),
+            out,
+        )
+        step_rec["trees"] = scene.trees.counts()
+        dsm_by_step[k] = dsm
+        t_truth += time.perf_counter() - t0
+
+        albedo = _albedo(scene, canopy, base_albedo, bank)
+        step_rec["surveys"] = []
+        for j in range(opts.flights_per_step):
+            srng = rng_for(opts.seed, "survey", k, j)
+            sun = Sun(float(srng.uniform(110, 250)), float(srng.uniform(38, 62)))
+            exposure = Exposure(
+                gain=float(srng.uniform(0.93, 1.07)),
+                white_balance=tuple(float(x) for x in srng.uniform(0.97, 1.03, 3)),
+            )
             t0 = time.perf_counter()
-            step_rec: dict = {
-                "index": k,
-                "name": f"step{k}",
-                "date_local": (first_local + timedelta(days=(k - 1) * opts.days_between_steps))
-                .date()
-                .isoformat(),
-                "truth": {},
-                "events": [],
-            }
-            if k > 1:
-                scene, change = advance(
-                    scene,
-                    spec.slides(k, n_steps),
-                    spec.nuisance,
-                    rng_for(opts.seed, "step", k),
-                    dsm_before=dsm,
-                )
-                dsm, canopy = scene.compose()
-                mask_cum = np.where(change.mask > 0, change.mask, mask_cum).astype(np.uint8)
-                dem = scene.dem()
-                for i, res in enumerate(change.slides, start=1):
-                    rec = res.summary()
-                    sel = change.events == i
-                    file_delta = float((dem[sel].astype(np.float64) - dem_prev[sel]).sum())
-                    rec["index_in_events_raster"] = i
-                    rec["step"] = k
-                    rec["relative_volume_error_from_dem_files"] = float(
-                        f"{abs(file_delta) * grid.cell_area / res.depleted_m3:.3e}"
-                    )
-                    rec["mask_area_m2"] = round(float(sel.sum() * grid.cell_area), 4)
-                    step_rec["events"].append(rec)
-                    per_event.append(
-                        {
-                            "step": k,
-                            "name": res.spec.name,
-                            "depleted_m3": rec["depleted_m3"],
-                            "relative_error": rec["relative_volume_error"],
-                            "relative_error_from_dem_files": rec[
-                                "relative_volume_error_from_dem_files"
-                            ],
-                        }
-                    )
-                step_rec["nuisance"] = change.nuisance
-                step_rec["fallen_trees"] = change.fallen_trees
-                step_rec["vanished_trees"] = change.vanished_trees
-                step_rec["truth"]["mask"] = _rel(
-                    write_raster(
-                        truth_dir / "mask.tif",
-                        change.mask,
-                        grid,
-                        frame,
-                        MASK_NODATA,
-                        "landslide mask since the previous step",
-                    ),
-                    out,
-                )
-                step_rec["truth"]["mask_since_step1"] = _rel(
-                    write_raster(
-                        truth_dir / "mask_since_step1.tif",
-                        mask_cum,
-                        grid,
-                        frame,
-                        MASK_NODATA,
-                        "landslide mask since step 1",
-                    ),
-                    out,
-                )
-                step_rec["truth"]["events"] = _rel(
-                    write_raster(
-                        truth_dir / "events.tif",
-                        change.events,
+            ortho = orthoimage(albedo, shading(dsm, grid.res, sun), exposure)
+            if j == 0 and opts.write_ortho:
+                step_rec["truth"]["ortho"] = _rel(
+                    writer.write(
+                        truth_dir / "ortho.tif",
+                        ortho,
                         grid,
                         frame,
                         None,
-                        "1-based index of the step's event in manifest events",
+                        "orthoimage the first survey was rendered from",
                     ),
                     out,
                 )
-                dem_prev = dem
-            step_rec["truth"]["dsm"] = _rel(
-                write_raster(
-                    truth_dir / "dsm.tif",
-                    dsm,
-                    grid,
-                    frame,
-                    DSM_NODATA,
-                    "true DSM (surface incl. vegetation), m",
-                ),
-                out,
-            )
-            step_rec["truth"]["dem"] = _rel(
-                write_raster(
-                    truth_dir / "dem.tif",
-                    scene.dem(),
-                    grid,
-                    frame,
-                    DSM_NODATA,
-                    "true bare-earth DEM, m",
-                ),
-                out,
-            )
-            step_rec["trees"] = scene.trees.counts()
-            dsm_by_step[k] = dsm
             t_truth += time.perf_counter() - t0
-
-            albedo = _albedo(scene, canopy, base_albedo, bank)
-            step_rec["surveys"] = []
-            for j in range(opts.flights_per_step):
-                srng = rng_for(opts.seed, "survey", k, j)
-                sun = Sun(float(srng.uniform(110, 250)), float(srng.uniform(38, 62)))
-                exposure = Exposure(
-                    gain=float(srng.uniform(0.93, 1.07)),
-                    white_balance=tuple(float(x) for x in srng.uniform(0.97, 1.03, 3)),
-                )
-                t0 = time.perf_counter()
-                ortho = orthoimage(albedo, shading(dsm, grid.res, sun), exposure)
-                if j == 0 and opts.write_ortho:
-                    step_rec["truth"]["ortho"] = _rel(
-                        write_raster(
-                            truth_dir / "ortho.tif",
-                            ortho,
-                            grid,
-                            frame,
-                            None,
-                            "orthoimage the first survey was rendered from",
-                        ),
-                        out,
-                    )
-                t_truth += time.perf_counter() - t0
-                start_local = first_local + timedelta(
-                    days=(k - 1) * opts.days_between_steps, minutes=40 * j
-                )
-                start_local += timedelta(seconds=float(srng.uniform(0, 600)))
-                start_local = start_local.replace(microsecond=0)
-                survey = _survey(
-                    pool,
-                    out,
-                    step_dir / f"flight{j + 1}",
-                    scene,
-                    dsm,
-                    ortho,
-                    frame,
-                    camera,
-                    still,
-                    plan,
-                    spec.home_xy,
-                    opts,
-                    gnss_model,
-                    imu_model,
-                    srng,
-                    start_local,
-                    tz,
-                    f"s{k}f{j + 1}",
-                    render_total,
-                )
-                survey["id"] = f"step{k}-flight{j + 1}"
-                survey["sun"] = {
-                    "azimuth_deg": round(sun.azimuth_deg, 2),
-                    "elevation_deg": round(sun.elevation_deg, 2),
-                }
-                survey["exposure"] = exposure.to_dict()
-                t_render += survey.pop("_render_time")
-                t_logs += survey.pop("_log_time")
-                step_rec["surveys"].append(survey)
-                done_surveys += 1
-                progress(0.05 + 0.85 * done_surveys / max(n_surveys, 1))
-            data["steps"].append(step_rec)
-            manifest.save()
+            start_local = first_local + timedelta(
+                days=(k - 1) * opts.days_between_steps, minutes=40 * j
+            )
+            start_local += timedelta(seconds=float(srng.uniform(0, 600)))
+            start_local = start_local.replace(microsecond=0)
+            survey = _survey(
+                pool,
+                out,
+                step_dir / f"flight{j + 1}",
+                scene,
+                dsm,
+                ortho,
+                frame,
+                camera,
+                still,
+                plan,
+                spec.home_xy,
+                opts,
+                gnss_model,
+                imu_model,
+                srng,
+                start_local,
+                tz,
+                f"s{k}f{j + 1}",
+                render_total,
+            )
+            survey["id"] = f"step{k}-flight{j + 1}"
+            survey["sun"] = {
+                "azimuth_deg": round(sun.azimuth_deg, 2),
+                "elevation_deg": round(sun.elevation_deg, 2),
+            }
+            survey["exposure"] = exposure.to_dict()
+            finishers.append((k, j, survey.pop("_finish")))
+            t_logs += survey.pop("_log_time")
+            step_rec["surveys"].append(survey)
+            done_surveys += 1
+            progress(0.05 + 0.85 * done_surveys / max(n_surveys, 1))
+        data["steps"].append(step_rec)
+        manifest.save()
 
     t0 = time.perf_counter()
     if opts.registration and n_steps >= 2:
@@ -392,7 +423,7 @@ def simulate_scenario(
         ref = manifest.step(1)["truth"]["dsm"]
         for name, shift in registration_patterns(spec.registration_scale).items():
             shifted = shift_dsm(dsm_by_step[r_step], grid.res, shift)
-            path = write_raster(
+            path = writer.write(
                 out / "registration" / f"step{r_step}_pattern-{name}_dsm.tif",
                 shifted,
                 grid,
@@ -412,7 +443,17 @@ def simulate_scenario(
                 }
             )
     timings["registration"] = time.perf_counter() - t0
+    # Wait for the surveys rendered in the background and the truth files.
+    t0 = time.perf_counter()
+    for k, j, finish in finishers:
+        seconds, fields = finish()
+        t_render += seconds
+        # (Into the manifest's own dict: `save` has replaced the one `_survey` made.)
+        manifest.survey(k, j).update(fields)
+    writer.wait()
+    timings["waiting_for_surveys_and_files"] = time.perf_counter() - t0
     timings["truth"] = t_truth
+    # Wall time of the background render + encode jobs (they overlap the above).
     timings["surveys_render_and_encode"] = t_render
     timings["surveys_logs"] = t_logs
     timings["total"] = time.perf_counter() - t_all
@@ -446,10 +487,6 @@ def simulate_scenario(
     data["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     data["platform"] = {"python": platform.python_version(), "machine": platform.machine()}
     manifest.save()
-    for p in scratch.glob("*.npy"):
-        p.unlink()
-    scratch.rmdir()
-    progress(1.0)
     return manifest
 
 
@@ -513,6 +550,7 @@ def _survey(
     }
     t_render = 0.0
     t_logs = 0.0
+    finishers: list = []
 
     def logged(times: np.ndarray) -> dict:
         """What the aircraft logs at true times `times`."""
@@ -533,7 +571,7 @@ def _survey(
         }
 
     if opts.survey in ("video", "both"):
-        from worker.simulator.video import VideoOptions, VideoWriter
+        from worker.simulator.video import VideoOptions, VideoResult, VideoWriter, pick_codec
 
         n_frames = int(np.floor(flight.duration * opts.fps + 1e-9)) + 1
         times = np.arange(n_frames) / opts.fps
@@ -549,28 +587,28 @@ def _survey(
             noise_seed=zlib.crc32(key.encode()),
         )
         video_path = sdir / "DJI_0001.MP4"
-        run = RenderRun()
-        preview = None
-        with VideoWriter(
-            video_path,
-            camera.width,
-            camera.height,
-            VideoOptions(fps=opts.fps, codec=opts.video_codec, crf=opts.crf),
-            creation_time=start_utc,
-        ) as vw:
-            for i, img in enumerate(pool.render(ref, pos, rot, stats=run)):
-                vw.write(img)
-                if i == n_frames // 2:
-                    preview = img
-        t_render += time.perf_counter() - t0
-        render_total.frames += run.frames
-        render_total.render_seconds += run.render_seconds
-        render_total.cpu_seconds += run.cpu_seconds
-        render_total.wall_seconds += run.wall_seconds
-        if preview is not None:
-            cv2.imwrite(str(sdir / "preview.png"), preview[..., ::-1])
-            rec["preview"] = _rel(sdir / "preview.png", out)
-            rec["preview_frame"] = n_frames // 2
+        preview_path = sdir / "preview.png"
+        # Names of their own: the closures below run later, after the image set's
+        # section (survey 'both') has bound `run` again.
+        video_run = RenderRun()
+        video_options = VideoOptions(fps=opts.fps, codec=opts.video_codec, crf=opts.crf)
+
+        def encode(frames) -> VideoResult:
+            """Runs in the pool's thread: frames in order into the MP4 (libx264 releases
+            the GIL, so this thread goes on meanwhile), the middle one as preview."""
+            with VideoWriter(
+                video_path, camera.width, camera.height, video_options, creation_time=start_utc
+            ) as vw:
+                for i, img in enumerate(frames):
+                    vw.write(img)
+                    if i == n_frames // 2:
+                        cv2.imwrite(str(preview_path), img[..., ::-1])
+            return vw.result
+
+        video_job = pool.submit(ref, pos, rot, encode, stats=video_run)
+        t_render += time.perf_counter() - t0  # registering the scene; the rest is in job
+        rec["preview"] = _rel(preview_path, out)
+        rec["preview_frame"] = n_frames // 2
         t0 = time.perf_counter()
         lg = logged(times)
         srt_path = sdir / "DJI_0001.SRT"
@@ -609,7 +647,20 @@ def _survey(
                 "fps": opts.fps,
                 "width": camera.width,
                 "height": camera.height,
-                "video_codec": vw.result.codec,
+                "video_codec": pick_codec(opts.video_codec),
+                "render": {},  # filled in when the background job is done (finish_video)
+            }
+        )
+
+        def finish_video() -> tuple[float, dict]:
+            """Wait for the video: the job's wall seconds and the record's last fields."""
+            result = video_job.result()
+            if result.frames != n_frames:
+                raise RuntimeError(f"{video_path}: {result.frames} frames, not {n_frames}")
+            run = video_run  # (local)
+            _add_run(render_total, run)
+            return run.wall_seconds, {
+                "video_codec": result.codec,
                 "render": {
                     "cpu_ms_per_frame": round(1000 * run.cpu_seconds / max(run.frames, 1), 2),
                     "frames_per_second_per_process": round(run.frames / run.render_seconds, 2)
@@ -620,7 +671,8 @@ def _survey(
                     else None,
                 },
             }
-        )
+
+        finishers.append(finish_video)
 
     photo_times = np.zeros(0)
     if opts.survey in ("images", "both"):
@@ -667,10 +719,7 @@ def _survey(
                 ),
             )
         t_render += time.perf_counter() - t0
-        render_total.frames += run.frames
-        render_total.render_seconds += run.render_seconds
-        render_total.cpu_seconds += run.cpu_seconds
-        render_total.wall_seconds += run.wall_seconds
+        _add_run(render_total, run)
         images_csv = sdir / "images.csv"
         cam_ypr = flight.sample(photo_times)["gimbal_ypr"]
         write_trajectory_csv(
@@ -708,9 +757,55 @@ def _survey(
         rec["flight_log_rate_hz"] = opts.log_rate_hz
         rec["flight_log_units"] = opts.csv_units
         t_logs += time.perf_counter() - t0
-    rec["_render_time"] = t_render
     rec["_log_time"] = t_logs
+
+    def finish() -> tuple[float, dict]:
+        """Wall seconds of rendering (here, plus the background job's) and the fields
+        the background job adds to this record."""
+        seconds, fields = t_render, {}
+        for f in finishers:
+            s, more = f()
+            seconds += s
+            fields.update(more)
+        return seconds, fields
+
+    rec["_finish"] = finish
     return rec
+
+
+def _add_run(total: RenderRun, run: RenderRun) -> None:
+    total.frames += run.frames
+    total.render_seconds += run.render_seconds
+    total.cpu_seconds += run.cpu_seconds
+    total.wall_seconds += run.wall_seconds
+
+
+class _TruthWriter:
+    """Writes truth rasters in a background thread, in order (GDAL compresses without
+    the GIL, so the caller computes the next step meanwhile). `write` returns the path
+    at once; `wait` (and leaving the with block) waits and re-raises any error."""
+
+    def __init__(self) -> None:
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="slidewatch-truth")
+        self._futures: list[Future] = []
+
+    def write(self, path: Path, *args, **kwargs) -> Path:
+        """`write_raster(path, *args, **kwargs)`, later."""
+        self._futures.append(self._executor.submit(write_raster, path, *args, **kwargs))
+        return Path(path)
+
+    def wait(self) -> None:
+        futures, self._futures = self._futures, []
+        for f in futures:
+            f.result()
+
+    def __enter__(self) -> _TruthWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._executor.shutdown(wait=True)
+        if exc_type is None:
+            self.wait()
 
 
 def _wrap(a):
