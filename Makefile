@@ -14,13 +14,29 @@ $(INSTALLED): requirements.lock pyproject.toml scripts/install-system-packages.s
 	$(PYTHON) -m pip install --quiet --no-deps --editable .
 	touch $@
 
-install: $(INSTALLED)
+# The map (frontend/): node packages exactly as package-lock.json pins them, then a Vite build
+# into frontend/dist, which the API serves at `/` (not committed).
+FRONTEND_BUILT := frontend/dist/index.html
+FRONTEND_DEPS := frontend/node_modules/.package-lock.json
+FRONTEND_SOURCES := $(shell find frontend/src -type f 2>/dev/null) frontend/index.html \
+	frontend/vite.config.ts frontend/tsconfig.json
+
+$(FRONTEND_DEPS): frontend/package.json frontend/package-lock.json
+	scripts/check-node.sh
+	cd frontend && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+$(FRONTEND_BUILT): $(FRONTEND_DEPS) $(FRONTEND_SOURCES)
+	cd frontend && npm run --silent build
+
+install: $(INSTALLED) $(FRONTEND_BUILT)
 
 run: install
 	$(VENV)/bin/slidewatch run
 
 test: install
 	$(VENV)/bin/ruff check .
+	cd frontend && npm test --silent
 	scripts/with-test-services.sh $(VENV)/bin/pytest $(PYTEST_ARGS)
 
 lint: install
@@ -43,4 +59,4 @@ benchmark: install
 	$(PYTHON) benchmarks/comparison.py --size 2000 --json benchmarks/results/comparison.json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .ruff_cache frontend/node_modules frontend/dist test-artifacts

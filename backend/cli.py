@@ -12,6 +12,7 @@ import click
 from backend.config import Settings, get_settings
 
 ADMIN_TOKEN_FILE = "admin-token"
+ADMIN_PASSWORD_FILE = "admin-password"
 
 
 @click.group()
@@ -40,6 +41,23 @@ def create_token_command(name: str) -> None:
     with session_scope() as session:
         token = create_token(session, name)
     click.echo(token)
+
+
+@main.command("create-user")
+@click.argument("username")
+@click.option("--display-name", default="", help="The name the map shows.")
+@click.password_option(help="Asked for when not given (at least 8 characters).")
+def create_user_command(username: str, display_name: str, password: str) -> None:
+    """Create a user who signs in to the map with a password."""
+    from backend.db.session import session_scope
+    from backend.services.users import UserRejected, create_user
+
+    try:
+        with session_scope() as session:
+            create_user(session, username, password, display_name)
+    except UserRejected as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"user {username} created")
 
 
 @main.command()
@@ -112,6 +130,65 @@ def ensure_admin_token(settings: Settings) -> str | None:
     return token_file.read_text().strip() if token_file.exists() else None
 
 
+def ensure_admin_user(settings: Settings) -> str | None:
+    """On first start create the map's user `admin` with a random password, kept in the data
+    directory for the operator (change it with `slidewatch create-user` for real users)."""
+    import secrets
+
+    from sqlalchemy import select
+
+    from backend.db.models import User
+    from backend.db.session import session_scope
+    from backend.services.users import create_user
+
+    password_file = settings.data_dir / ADMIN_PASSWORD_FILE
+    with session_scope() as session:
+        if session.scalar(select(User.id).limit(1)) is None:
+            password = secrets.token_urlsafe(12)
+            create_user(session, "admin", password, "Administrator")
+            password_file.write_text(password + "\n")
+            password_file.chmod(0o600)
+    return password_file.read_text().strip() if password_file.exists() else None
+
+
+@main.command("seed-demo")
+def seed_demo_command() -> None:
+    """Create the demo site: two simulated flights, reconstructed and compared (minutes)."""
+    from backend.db.session import session_scope
+    from backend.services.demo import seed_demo
+    from backend.storage import LocalStorage
+    from worker.celery_app import create_celery
+
+    settings = get_settings()
+    with session_scope() as session:
+        site = seed_demo(
+            session,
+            LocalStorage(settings.storage_dir),
+            create_celery(settings),
+            settings.work_dir / "demo-simulation",
+        )
+    click.echo("demo site is being processed" if site else "the demo site exists already")
+
+
+def start_demo_seeding(settings: Settings) -> subprocess.Popen | None:
+    """On the first start only (and unless turned off), seed the demo in the background.
+    A database that has sites already is not a first start."""
+    from sqlalchemy import select
+
+    from backend.db.models import Site
+    from backend.db.session import session_scope
+    from backend.services.demo import MARKER_FILE
+
+    marker = settings.data_dir / MARKER_FILE
+    if not settings.seed_demo or marker.exists():
+        return None
+    marker.write_text("the demo site was seeded on the first start\n")
+    with session_scope() as session:
+        if session.scalar(select(Site.id).limit(1)) is not None:
+            return None
+    return subprocess.Popen([sys.executable, "-m", "backend.cli", "seed-demo"])
+
+
 @main.command()
 def run() -> None:
     """Everything on one machine: migrate, then run the API and a worker with its scheduler."""
@@ -121,19 +198,31 @@ def run() -> None:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     upgrade(settings.resolved_database_url)
     token = ensure_admin_token(settings)
+    password = ensure_admin_user(settings)
     url = f"http://{settings.api_host}:{settings.api_port}"
 
     worker_process = subprocess.Popen(worker_command(settings, with_beat=True))
     api_process = subprocess.Popen([sys.executable, "-m", "backend.cli", "api"])
+    demo_process = start_demo_seeding(settings)
     click.echo(f"slidewatch is running at {url}  (API docs: {url}/docs)")
     if token:
         click.echo(f"API token: {token}  (kept in {Path(settings.data_dir) / ADMIN_TOKEN_FILE})")
     else:
         click.echo("API token: create one with `slidewatch create-token`")
+    if password:
+        click.echo(
+            f"Map: {url}/  sign in as admin with password {password}  "
+            f"(kept in {Path(settings.data_dir) / ADMIN_PASSWORD_FILE})"
+        )
+    if demo_process:
+        click.echo(
+            "Demo: a simulated site is being made and processed; it appears on the map within "
+            "minutes (SLIDEWATCH_SEED_DEMO=false turns this off)"
+        )
 
     def stop(*_args: object) -> None:
-        for process in (api_process, worker_process):
-            if process.poll() is None:
+        for process in (demo_process, api_process, worker_process):
+            if process is not None and process.poll() is None:
                 process.terminate()
 
     signal.signal(signal.SIGTERM, stop)
@@ -148,13 +237,17 @@ def run() -> None:
 
 
 def _register_pipeline_commands() -> None:
+    from worker.commands.bench import bench
     from worker.commands.detect import detect
     from worker.commands.reconstruct import reconstruct
     from worker.commands.simulate import simulate_command
+    from worker.commands.train import train
 
+    main.add_command(bench)
     main.add_command(detect)
     main.add_command(reconstruct)
     main.add_command(simulate_command)
+    main.add_command(train)
 
 
 _register_pipeline_commands()

@@ -77,6 +77,36 @@ class Settings(BaseSettings):
         description="Backoff of deliveries: base, 2 × base, 4 × base, ... (at most 1 hour).",
     )
     webhook_timeout_s: float = 10.0
+    # --- the map (frontend/) ---
+    session_hours: float = Field(
+        default=12.0, description="How long a sign-in to the map lasts before it must be redone."
+    )
+    basemap_url: str | None = Field(
+        default=None,
+        description="XYZ URL template of a basemap under the map's layers, e.g. "
+        "https://tile.openstreetmap.org/{z}/{x}/{y}.png. Unset: no basemap (works offline).",
+    )
+    basemap_attribution: str = Field(
+        default="© OpenStreetMap contributors", description="Credit shown for the basemap."
+    )
+    upload_chunk_bytes: int = Field(
+        default=8 * 1024**2,
+        description="Size of each request of a resumable upload from the map: what is lost "
+        "and sent again at most when the connection drops.",
+    )
+    upload_expiry_hours: float = Field(
+        default=72.0, description="An unfinished resumable upload is removed after this long."
+    )
+    seed_demo: bool = Field(
+        default=True,
+        description="On the first start of `slidewatch run`, create a demo site with a "
+        "simulated pre/post survey pair and process it.",
+    )
+    frontend_dir: Path | None = Field(
+        default=None,
+        description="The built map (index.html and assets). Default: frontend/dist of the "
+        "source tree.",
+    )
 
     @property
     def storage_dir(self) -> Path:
@@ -85,6 +115,10 @@ class Settings(BaseSettings):
     @property
     def work_dir(self) -> Path:
         return self.data_dir / "work"
+
+    @property
+    def resolved_frontend_dir(self) -> Path:
+        return self.frontend_dir or Path(__file__).resolve().parents[1] / "frontend" / "dist"
 
     @property
     def resolved_public_url(self) -> str:

@@ -1,4 +1,8 @@
-"""API tokens: random secrets shown once, stored only as SHA-256 hashes."""
+"""API tokens: random secrets shown once, stored only as SHA-256 hashes.
+
+The same tokens, with an expiry and a user, are the sessions of people signed in to the map
+(backend/services/users.py).
+"""
 
 import hashlib
 import secrets
@@ -31,9 +35,18 @@ def authenticate(session: Session, token: str) -> ApiToken | None:
             ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None)
         )
     )
-    if found is not None:
-        found.last_used_at = datetime.now(UTC)
+    if found is None:
+        return None
+    now = datetime.now(UTC)
+    if found.expires_at is not None and as_utc(found.expires_at) <= now:
+        return None  # a map session that has run out: sign in again
+    found.last_used_at = now
     return found
+
+
+def as_utc(moment: datetime) -> datetime:
+    """`moment` as an aware UTC datetime (SQLite gives back naive ones, meant as UTC)."""
+    return moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment.astimezone(UTC)
 
 
 def has_tokens(session: Session) -> bool:

@@ -92,6 +92,20 @@ class LocalStorage:
             partial.unlink(missing_ok=True)
         return SavedFile(relative, size, digest.hexdigest())
 
+    def adopt_file(self, source: Path, folder: str, suffix: str) -> SavedFile:
+        """Move a finished file (e.g. a completed resumable upload) into storage."""
+        size, sha256 = file_digest(source)
+        relative = self.new_relative_path(folder, suffix)
+        target = self.absolute(relative)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.replace(source, target)
+        except OSError:  # another file system: copy, then rename into place
+            saved = self.import_file(source, folder, suffix)
+            Path(source).unlink()
+            return saved
+        return SavedFile(relative, size, sha256)
+
     def delete(self, relative_path: str) -> None:
         self.absolute(relative_path).unlink(missing_ok=True)
 

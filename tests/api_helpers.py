@@ -20,8 +20,8 @@ def upload_dsm(
     return response.json()
 
 
-def run_job_inline(job_id: int) -> None:
+def run_job_inline(job_id: int, first_stage: str = "align") -> None:
     """Run every stage of a job in this process, exactly as a worker would."""
-    stage: str | None = "align"
+    stage: str | None = first_stage
     while stage is not None:
         stage = execute_stage(job_id, stage)

@@ -45,6 +45,29 @@ def redis_url() -> Iterator[str]:
         client.close()
 
 
+@pytest.fixture(scope="session")
+def simulated_mounds_survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A short simulated survey of the paper's mound field: (flight folder, truth folder).
+
+    6 s of 640x360 video at 15 fps from 7 m with its DJI SRT and AirData CSV (stand-alone
+    GPS), made once per test session and shared by the reconstruction and API tests.
+    """
+    from worker.simulator.simulate import SimulationOptions, simulate_scenario
+
+    out = tmp_path_factory.mktemp("sim")
+    options = SimulationOptions(
+        steps=1,
+        video_seconds=6.0,
+        fps=15.0,
+        registration=False,
+        write_ortho=False,
+        workers=1,
+        seed=3,
+    )
+    simulate_scenario("paper-mounds", out, options)
+    return out / "step1" / "flight1", out / "step1" / "truth"
+
+
 @pytest.fixture
 def embedded_settings(tmp_path: Path) -> Settings:
     """The embedded default: SQLite database and SQLite broker in a fresh data directory."""

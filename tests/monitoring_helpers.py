@@ -168,7 +168,7 @@ def finished_comparison(
     post = upload_dsm(client, auth, site, pair.post, "2026-07-01T10:00:00Z")
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
-        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"]},
+        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "method": "threshold"},
         headers=auth,
     )
     assert created.status_code == 202, created.text

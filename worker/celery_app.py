@@ -9,6 +9,7 @@ RECOVER_TASK = "slidewatch.recover_stalled_jobs"
 DELIVER_TASK = "slidewatch.deliver"
 BUILD_REPORT_TASK = "slidewatch.build_report"
 MONITORING_TICK_TASK = "slidewatch.monitoring_tick"
+TRAIN_MODEL_TASK = "slidewatch.train_model"
 QUEUE = "slidewatch"
 
 
@@ -22,7 +23,7 @@ def create_celery(settings: Settings) -> Celery:
     app = Celery(
         "slidewatch",
         broker=settings.resolved_broker_url,
-        include=["worker.tasks", "worker.tasks_monitoring"],
+        include=["worker.tasks", "worker.tasks_monitoring", "worker.tasks_training"],
     )
     app.conf.update(
         # A task is acknowledged only when it has finished, so a worker that dies

@@ -1,27 +1,29 @@
 """The FastAPI application."""
 
-import os
-
-# A VRT can point GDAL at any file on the machine: the API never reads one. This must be
-# set before GDAL registers its drivers (on the first raster opened in the process).
-os.environ.setdefault("GDAL_SKIP", "VRT")
-
 from fastapi import APIRouter, FastAPI
 from sqlalchemy.orm import sessionmaker
 
 from backend.api.routes import (
     alerts,
+    auth,
     comparisons,
+    detection_cells,
+    detection_feedback,
+    frontend,
     health,
+    job_events,
     jobs,
+    models,
     ogc,
     products,
     reports,
     schedules,
     sites,
     stac,
+    survey_sources,
     surveys,
     tiles,
+    uploads,
 )
 from backend.config import Settings, get_settings
 from backend.db.session import make_engine
@@ -55,6 +57,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api = APIRouter(prefix=API_PREFIX)
     for module in (
         sites,
+        survey_sources,
         surveys,
         comparisons,
         jobs,
@@ -63,9 +66,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         alerts,
         schedules,
         reports,
+        auth,
+        uploads,
+        job_events,
+        detection_feedback,
+        detection_cells,
+        models,
     ):
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(ogc.router)
     app.include_router(stac.router)
+    app.include_router(frontend.router)
+    frontend.mount_frontend(app, settings)
     return app

@@ -75,6 +75,10 @@ def require_token(
             "invalid or revoked API token",
             headers={"WWW-Authenticate": "Bearer"},
         )
+    # Commit the token's last use now: on SQLite a pending write holds the database's write
+    # lock until commit, and a long request (an upload's body, an event stream) would
+    # otherwise block every other writer, workers included, for as long as it lasts.
+    session.commit()
     return token
 
 

@@ -2,8 +2,9 @@
 
 from datetime import datetime
 from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
 
@@ -12,18 +13,38 @@ class ORMModel(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
 
+def check_timezone(name: str | None) -> str | None:
+    if name is None:
+        return name
+    try:
+        ZoneInfo(name)
+    except (ZoneInfoNotFoundError, ValueError):
+        raise ValueError(
+            f"unknown time zone {name!r}: use an IANA name such as Europe/Rome or Asia/Kathmandu"
+        ) from None
+    return name
+
+
 class SiteCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
     description: str = ""
     area_of_interest: dict[str, Any] | None = Field(
         default=None, description="GeoJSON Polygon or MultiPolygon in WGS84 lon/lat."
     )
+    timezone: str = Field(
+        default="UTC", max_length=64, description="IANA time zone the map shows times in."
+    )
+
+    _timezone = field_validator("timezone")(check_timezone)
 
 
 class SiteUpdate(BaseModel):
     name: str | None = Field(default=None, min_length=1, max_length=200)
     description: str | None = None
     area_of_interest: dict[str, Any] | None = None
+    timezone: str | None = Field(default=None, max_length=64)
+
+    _timezone = field_validator("timezone")(check_timezone)
 
 
 class SiteOut(ORMModel):
@@ -31,6 +52,7 @@ class SiteOut(ORMModel):
     name: str
     description: str
     area_of_interest: dict[str, Any] | None
+    timezone: str
     created_at: datetime
 
 
@@ -63,13 +85,40 @@ class SurveyOut(ORMModel):
     footprint: dict[str, Any] | None
     resolution_m: float | None
     source_file: StoredFileOut | None
+    error: str | None = None
+    created_at: datetime
+
+
+class SourceSurveyCreate(BaseModel):
+    kind: SurveyKind = Field(description="`video` (a video with its flight log) or `images`.")
+    name: str = Field(min_length=1, max_length=200)
+    captured_at: datetime
+    options: dict[str, Any] | None = Field(
+        default=None,
+        description='Reconstruction options, e.g. {"method": "sfm"}, '
+        '{"camera": {"model": "FC6310"}}, {"time_offset_s": 1.5}.',
+    )
+
+
+class SurveyFileOut(ORMModel):
+    id: int
+    survey_id: int
+    role: str
+    name: str
+    file: StoredFileOut
     created_at: datetime
 
 
 class ComparisonCreate(BaseModel):
     pre_survey_id: int
     post_survey_id: int
-    method: str = Field(default="threshold", description="Detection method: threshold.")
+    method: str | None = Field(
+        default=None,
+        description="Detection method: `cnn` (the detection model; the default when one is "
+        "installed) or `threshold` (Δh beyond the level of detection). A cnn comparison "
+        'runs the default model unless its parameters name one: {"cnn": {"model": '
+        '"name@version"}} (see GET /models).',
+    )
     parameters: dict[str, Any] = Field(
         default_factory=dict, description="Options of the comparison stages (see docs)."
     )

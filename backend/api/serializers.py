@@ -4,6 +4,7 @@ from typing import Any
 
 from backend.api.schemas import ComparisonOut, JobOut, ProductOut, StageRunOut, StoredFileOut
 from backend.db.models import Comparison, Detection, Job, Product
+from backend.services.feedback import feedback_summary
 from backend.services.jobs import job_progress
 
 API_PREFIX = "/api/v1"
@@ -58,5 +59,7 @@ def detection_feature(detection: Detection) -> dict[str, Any]:
             "max_abs_dh_m": detection.max_abs_dh_m,
             "score": detection.score,
             "method": detection.method,
+            "model_version": detection.model_version,
+            "feedback": feedback_summary(detection),
         },
     }

@@ -52,6 +52,7 @@ class SurveyKind(enum.StrEnum):
 
 
 class SurveyStatus(enum.StrEnum):
+    receiving = "receiving"  # a video or image-set survey whose files are still coming
     uploaded = "uploaded"
     processing = "processing"
     ready = "ready"
@@ -87,6 +88,14 @@ class ApiToken(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     last_used_at: Mapped[datetime | None]
     revoked_at: Mapped[datetime | None]
+    # Set on the tokens that signing in gives a user (the map's sessions); NULL for the
+    # platform's API tokens, which belong to no user and do not expire.
+    user_id: Mapped[int | None] = mapped_column(
+        ForeignKey("users.id", ondelete="CASCADE"), index=True
+    )
+    expires_at: Mapped[datetime | None]
+
+    user: Mapped[User | None] = relationship()
 
 
 class Site(Base):
@@ -96,6 +105,8 @@ class Site(Base):
     name: Mapped[str] = mapped_column(String(200), unique=True)
     description: Mapped[str] = mapped_column(Text, default="")
     area_of_interest: Mapped[dict[str, Any] | None]
+    # IANA time zone name: the map shows every time of the site in it.
+    timezone: Mapped[str] = mapped_column(String(64), default="UTC", server_default="UTC")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     surveys: Mapped[list[Survey]] = relationship(back_populates="site")
@@ -126,11 +137,34 @@ class Survey(Base):
     footprint: Mapped[dict[str, Any] | None]
     resolution_m: Mapped[float | None] = mapped_column(Float)
     source_file_id: Mapped[int | None] = mapped_column(ForeignKey("stored_files.id"))
+    # Reconstruction options of a video or image-set survey (method, camera, time offset).
+    options: Mapped[dict[str, Any] | None]
+    error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     site: Mapped[Site] = relationship(back_populates="surveys")
     source_file: Mapped[StoredFile | None] = relationship()
     products: Mapped[list[Product]] = relationship(back_populates="survey")
+    files: Mapped[list[SurveyFile]] = relationship(
+        back_populates="survey", cascade="all, delete-orphan", order_by="SurveyFile.id"
+    )
+
+
+class SurveyFile(Base):
+    """One uploaded input of a video or image-set survey: the video, its log, an image."""
+
+    __tablename__ = "survey_files"
+    __table_args__ = (UniqueConstraint("survey_id", "name", name="uq_survey_files_survey_name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id", ondelete="CASCADE"), index=True)
+    role: Mapped[str] = mapped_column(String(16))  # video | log | image
+    name: Mapped[str] = mapped_column(String(255))  # the file name as uploaded, made safe
+    file_id: Mapped[int] = mapped_column(ForeignKey("stored_files.id"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    survey: Mapped[Survey] = relationship(back_populates="files")
+    file: Mapped[StoredFile] = relationship()
 
 
 class Comparison(Base):
@@ -201,9 +235,14 @@ class Detection(Base):
     max_abs_dh_m: Mapped[float] = mapped_column(Float)
     score: Mapped[float] = mapped_column(Float)
     method: Mapped[str] = mapped_column(String(32))
+    # "name@version" of the detection model (cnn method); NULL for the threshold method.
+    model_version: Mapped[str | None] = mapped_column(String(200))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     comparison: Mapped[Comparison] = relationship(back_populates="detections")
+    feedback: Mapped[list[DetectionFeedback]] = relationship(
+        cascade="all, delete-orphan", passive_deletes=True, order_by="DetectionFeedback.id"
+    )
 
 
 class Job(Base):
@@ -379,3 +418,101 @@ class DeliveryAttempt(Base):
     duration_ms: Mapped[float] = mapped_column(Float, default=0.0)
 
     delivery: Mapped[Delivery] = relationship(back_populates="attempt_log")
+
+
+# --- The map: users, resumable uploads, feedback on detections ------------------------------
+
+
+class User(Base):
+    """A person who signs in to the map with a password (stored as a scrypt hash)."""
+
+    __tablename__ = "users"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    username: Mapped[str] = mapped_column(String(100), unique=True)
+    display_name: Mapped[str] = mapped_column(String(200), default="")
+    password_hash: Mapped[str] = mapped_column(String(255))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    last_login_at: Mapped[datetime | None]
+    disabled_at: Mapped[datetime | None]
+
+
+class UploadState(enum.StrEnum):
+    receiving = "receiving"
+    complete = "complete"
+    failed = "failed"
+
+
+class Upload(Base):
+    """A resumable (tus) upload: its bytes accumulate in storage until complete."""
+
+    __tablename__ = "uploads"
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    site_id: Mapped[int] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    purpose: Mapped[str] = mapped_column(String(16))  # dsm | survey_file
+    filename: Mapped[str] = mapped_column(String(512))
+    length: Mapped[int] = mapped_column(BigInteger)
+    offset: Mapped[int] = mapped_column(BigInteger, default=0)
+    sha256: Mapped[str | None] = mapped_column(String(64))  # expected, from the client
+    details: Mapped[dict[str, Any]] = mapped_column(default=dict)  # validated metadata
+    state: Mapped[UploadState] = mapped_column(_enum(UploadState, "upload_state"))
+    error: Mapped[str | None] = mapped_column(Text)
+    survey_id: Mapped[int | None] = mapped_column(ForeignKey("surveys.id", ondelete="SET NULL"))
+    created_by: Mapped[str] = mapped_column(String(200), default="")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    completed_at: Mapped[datetime | None]
+    expires_at: Mapped[datetime] = mapped_column(index=True)
+
+
+class Verdict(enum.StrEnum):
+    confirmed = "confirmed"
+    false_alarm = "false_alarm"
+
+
+class DetectionFeedback(Base):
+    """A person's verdict on one detection; the training labels of the detection model."""
+
+    __tablename__ = "detection_feedback"
+    __table_args__ = (
+        # One verdict per detection and person: changing one's mind updates it.
+        UniqueConstraint("detection_id", "author", name="uq_detection_feedback_author"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    detection_id: Mapped[int] = mapped_column(
+        ForeignKey("detections.id", ondelete="CASCADE"), index=True
+    )
+    verdict: Mapped[Verdict] = mapped_column(_enum(Verdict, "verdict"))
+    note: Mapped[str] = mapped_column(Text, default="")
+    user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    author: Mapped[str] = mapped_column(String(200))  # user name, or "token NAME"
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+# --- Detection models ------------------------------------------------------------------------
+
+
+class ModelVersion(Base):
+    """A detection model the cnn method can run: its weights file and its model card.
+
+    `location` says where `weights_path` points: "package" (relative to the shipped
+    weights folder, worker/pipeline/cnn/weights) or "storage" (relative to the storage
+    root: models trained by the platform). The card (metrics, training data, decision
+    rule) sits next to the weights as `<name>.json` and is copied here.
+    """
+
+    __tablename__ = "model_versions"
+    __table_args__ = (UniqueConstraint("name", "version", name="uq_model_versions_name_version"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(100))
+    version: Mapped[str] = mapped_column(String(64))
+    kind: Mapped[str] = mapped_column(String(32))  # slidenet | patchnet
+    location: Mapped[str] = mapped_column(String(16))  # package | storage
+    weights_path: Mapped[str] = mapped_column(String(1024))
+    weights_sha256: Mapped[str] = mapped_column(String(64))
+    card: Mapped[dict[str, Any]]
+    is_default: Mapped[bool] = mapped_column(Boolean, default=False)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)

@@ -5,14 +5,34 @@ from shapely.geometry import shape
 from sqlalchemy.orm import Session
 
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
+from backend.services import models
 from backend.services.jobs import QueueUnavailable, new_job, start_job
 from worker.jobs.comparison import ComparisonJob
-from worker.pipeline.comparison import METHODS, ComparisonOptions
+from worker.pipeline.comparison import METHODS, ComparisonOptions, stages_for
 from worker.pipeline.errors import InputError
 
 
 class ComparisonRejected(ValueError):
     """The request cannot make a valid comparison; the message says why."""
+
+
+def default_method(session: Session) -> str:
+    """ "cnn" when a detection model is installed (registered or shipped), else "threshold"."""
+    return "cnn" if models.default_model(session) is not None else "threshold"
+
+
+def _model_reference(session: Session, requested: str | None) -> str:
+    """The "name@version" a cnn comparison will run: the one requested (a registered
+    model, never a path) or the default; kept in the comparison's parameters."""
+    if requested in (None, "", "default"):
+        row = models.default_model(session)
+        if row is None:
+            raise ComparisonRejected("no detection model is installed: use method threshold")
+        return models.reference(row)
+    try:
+        return models.reference(models.find_model(session, requested))
+    except models.UnknownModel as exc:
+        raise ComparisonRejected(str(exc)) from None
 
 
 def _survey_of_site(session: Session, site: Site, survey_id: int, role: str) -> Survey:
@@ -35,9 +55,10 @@ def create_comparison(
     site: Site,
     pre_survey_id: int,
     post_survey_id: int,
-    method: str,
+    method: str | None,
     parameters: dict,
 ) -> tuple[Comparison, Job]:
+    method = method or default_method(session)
     if method not in METHODS:
         raise ComparisonRejected(f"unknown method {method!r}; choose one of: {', '.join(METHODS)}")
     if pre_survey_id == post_survey_id:
@@ -52,6 +73,8 @@ def create_comparison(
         options = ComparisonOptions.from_dict({**parameters, "method": method})
     except (InputError, TypeError, ValueError) as exc:
         raise ComparisonRejected(f"invalid parameters: {exc}") from exc
+    if method == "cnn":
+        options.cnn.model = _model_reference(session, options.cnn.model)
 
     comparison = Comparison(
         site_id=site.id,
@@ -63,7 +86,7 @@ def create_comparison(
     )
     session.add(comparison)
     session.flush()
-    job = new_job(site.id, ComparisonJob.name, ComparisonJob.stages, comparison_id=comparison.id)
+    job = new_job(site.id, ComparisonJob.name, stages_for(method), comparison_id=comparison.id)
     session.add(job)
     session.commit()
     try:

@@ -7,9 +7,18 @@ only after the commit, so a failed delete never leaves rows pointing at missing 
 from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session
 
-from backend.db.models import Comparison, Product, Report, Site, StoredFile, Survey
+from backend.db.models import (
+    Comparison,
+    Product,
+    Report,
+    Site,
+    StoredFile,
+    Survey,
+    SurveyFile,
+)
 from backend.storage import LocalStorage
 from worker.jobs.comparison import comparison_folder
+from worker.jobs.reconstruction import survey_folder
 
 
 class StillInUse(Exception):
@@ -25,6 +34,12 @@ def _source_files_of(session: Session, *conditions) -> list[StoredFile]:
     """The uploaded originals of surveys (their DSM product is a COG made from it)."""
     sources = select(Survey.source_file_id).where(or_(*conditions))
     return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(sources))))
+
+
+def _uploads_of(session: Session, *conditions) -> list[StoredFile]:
+    """The video, log and photo files of source surveys."""
+    uploads = select(SurveyFile.file_id).join(Survey).where(or_(*conditions))
+    return list(session.scalars(select(StoredFile).where(StoredFile.id.in_(uploads))))
 
 
 def _report_files_of(session: Session, site_id: int) -> list[StoredFile]:
@@ -64,8 +79,10 @@ def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> No
         )
     files = _files_of(session, Product.survey_id == survey.id)
     files += _source_files_of(session, Survey.id == survey.id)
+    files += _uploads_of(session, Survey.id == survey.id)
+    folder = survey_folder(survey)
     session.execute(delete(Survey).where(Survey.id == survey.id))
-    _remove(session, storage, files, [])
+    _remove(session, storage, files, [folder])
 
 
 def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
@@ -74,6 +91,10 @@ def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
     ).all()
     files = _files_of(session, Product.site_id == site.id)
     files += _source_files_of(session, Survey.site_id == site.id)
+    files += _uploads_of(session, Survey.site_id == site.id)
     files += _report_files_of(session, site.id)
+    folders = [comparison_folder(c) for c in comparison_ids]
+    folders += [survey_folder(s) for s in site.surveys]
+    folders.append(f"uploads/{site.id}")  # unfinished resumable uploads (services/uploads.py)
     session.execute(delete(Site).where(Site.id == site.id))
-    _remove(session, storage, files, [comparison_folder(c) for c in comparison_ids])
+    _remove(session, storage, files, folders)

@@ -115,14 +115,15 @@ def lost_reports(session: Session, now: datetime | None = None) -> list[int]:
     )
 
 
-def model_version(method: str) -> str:
+def model_version(method: str, detection_model: str | None = None) -> str:
     def of(package: str) -> str:
         try:
             return version(package)
         except PackageNotFoundError:
             return "unknown"
 
-    return f"slidewatch {of('slidewatch')}, detection method '{method}', xdem {of('xdem')}"
+    model = f" (model {detection_model})" if detection_model else ""
+    return f"slidewatch {of('slidewatch')}, detection method '{method}'{model}, xdem {of('xdem')}"
 
 
 def _survey_label(survey: Survey) -> str:
@@ -206,7 +207,9 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         change=None,
         parameters=dict(comparison.parameters or {}),
         processing=_processing(comparison),
-        model_version=model_version(comparison.method),
+        model_version=model_version(
+            comparison.method, ((comparison.parameters or {}).get("cnn") or {}).get("model")
+        ),
         notes=notes,
     )
     data.change = _change(session, report, comparison.id, data.totals)

@@ -18,13 +18,13 @@ from datetime import UTC, datetime
 from typing import Any
 
 import pystac
-import rasterio
 from pystac.extensions.projection import ProjectionExtension
 from shapely.geometry import shape
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend.db.models import Comparison, JobState, Product, Site, Survey
+from backend.geotiff import open_geotiff
 from backend.storage import LocalStorage
 from worker.pipeline.geo import geojson_rfc7946
 
@@ -143,7 +143,7 @@ def _projection(item: pystac.Item, crs: str | None, raster_path: Any | None) -> 
     elif crs:
         projection.wkt2 = crs
     if raster_path is not None:
-        with rasterio.open(raster_path) as src:
+        with open_geotiff(raster_path) as src:
             projection.shape = [src.height, src.width]
             projection.transform = list(src.transform)[:6]
             projection.bbox = list(src.bounds)

@@ -6,16 +6,18 @@ Cloud-Optimized GeoTIFF made from it, which GIS clients and the tile server read
 
 from collections.abc import AsyncIterator
 from datetime import datetime
+from pathlib import Path
 
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
+from backend.geotiff import is_geotiff
 from backend.storage import LocalStorage, SavedFile, file_digest
+from worker.jobs.products import COG_MEDIA_TYPE
 from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.dsm_inspect import inspect_dsm
-
-COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
+from worker.pipeline.errors import InputError
 
 
 async def create_dsm_survey(
@@ -35,9 +37,49 @@ async def create_dsm_survey(
     row is left behind.
     """
     saved: SavedFile = await storage.save_stream(chunks, f"surveys/{site.id}", ".tif", max_bytes)
+    return await _record_dsm_survey(
+        session, storage, site, saved, name=name, captured_at=captured_at,
+        original_name=original_name,
+    )  # fmt: skip
+
+
+async def create_dsm_survey_from_file(
+    session: Session,
+    storage: LocalStorage,
+    site: Site,
+    source: Path,
+    *,
+    name: str,
+    captured_at: datetime,
+    original_name: str | None,
+) -> Survey:
+    """As create_dsm_survey, from a complete file on disk (a finished resumable upload),
+    which is moved into storage. Raises InputError; on failure the file is removed."""
+    saved = await run_in_threadpool(storage.adopt_file, source, f"surveys/{site.id}", ".tif")
+    return await _record_dsm_survey(
+        session, storage, site, saved, name=name, captured_at=captured_at,
+        original_name=original_name,
+    )  # fmt: skip
+
+
+async def _record_dsm_survey(
+    session: Session,
+    storage: LocalStorage,
+    site: Site,
+    saved: SavedFile,
+    *,
+    name: str,
+    captured_at: datetime,
+    original_name: str | None,
+) -> Survey:
+    """Check the saved file is a usable DSM, make its COG and record both (or neither)."""
+    label = f"the upload {original_name!r}" if original_name else "the upload"
+    if not is_geotiff(storage.absolute(saved.relative_path)):
+        # Never handed to GDAL: a VRT or other format could make it read any file.
+        storage.delete(saved.relative_path)
+        raise InputError(f"{label} is not a GeoTIFF (it is not a TIFF file)")
     cog_path = storage.new_relative_path(f"surveys/{site.id}", ".cog.tif")
     try:
-        label = f"the upload {original_name!r}" if original_name else "the upload"
         info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path), label)
         await run_in_threadpool(
             write_cog,

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import morecantile
 import numpy as np
-import rasterio
 from rasterio.enums import Resampling
 from rio_tiler.colormap import cmap
 from rio_tiler.errors import TileOutsideBounds
@@ -32,13 +31,15 @@ from rio_tiler.models import ImageData
 from scipy import ndimage
 from titiler.core.algorithm import HillShade
 
+from backend.geotiff import NotGeoTiff, is_geotiff, open_geotiff
+
 TMS = morecantile.tms.get("WebMercatorQuad")
 TILE_SIZE = 256
 HILLSHADE_BUFFER = 3
 MAX_ZOOM = 24
 EARTH_CIRCUMFERENCE_M = 2 * math.pi * 6378137.0
 
-__all__ = ["TileOutsideBounds"]
+__all__ = ["NotGeoTiff", "TileOutsideBounds", "is_geotiff", "open_geotiff"]
 
 
 class LayerStyle:
@@ -102,7 +103,7 @@ def raster_stats(path: Path) -> RasterStats:
 @lru_cache(maxsize=256)
 def _raster_stats(path: str, _mtime: int, _size: int) -> RasterStats:
     """Percentiles from a decimated read (the COG's overviews make it cheap)."""
-    with rasterio.open(path) as src:
+    with open_geotiff(path) as src:
         scale = max(1.0, max(src.width, src.height) / 1024)
         shape = (max(1, int(src.height / scale)), max(1, int(src.width / scale)))
         data = src.read(1, out_shape=shape, masked=True, resampling=Resampling.nearest)
@@ -121,7 +122,7 @@ def layer_info(path: Path) -> LayerInfo:
 
 @lru_cache(maxsize=256)
 def _layer_info(path: str, _mtime: int, _size: int) -> LayerInfo:
-    with Reader(path, tms=TMS) as reader:
+    with open_geotiff(path) as dataset, Reader(path, dataset=dataset, tms=TMS) as reader:
         bounds = tuple(float(b) for b in reader.get_geographic_bounds(TMS.rasterio_geographic_crs))
         return LayerInfo(bounds, int(reader.minzoom), min(int(reader.maxzoom) + 2, MAX_ZOOM))  # type: ignore[arg-type]
 
@@ -192,7 +193,7 @@ def render_tile(
     colormap: str | None = None,
 ) -> bytes:
     """A 256 px PNG of tile z/x/y; raises TileOutsideBounds outside the raster."""
-    with Reader(str(path), tms=TMS) as reader:
+    with open_geotiff(path) as dataset, Reader(str(path), dataset=dataset, tms=TMS) as reader:
         if spec.style == LayerStyle.hillshade:
             img = reader.tile(
                 x,

@@ -31,7 +31,7 @@ def _compare(client: TestClient, auth: dict, site: int, pair: DsmPairPaths) -> d
     post = upload_dsm(client, auth, site, pair.post, "2026-07-01T10:00:00Z")
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
-        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"]},
+        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "method": "threshold"},
         headers=auth,
     ).json()
     run_job_inline(created["job"]["id"])
@@ -146,7 +146,8 @@ def test_emails_reach_smtp_and_job_failures_alert_once(
     job = client.post(
         f"/api/v1/sites/{site}/comparisons",
         json={"pre_survey_id": created["comparison"]["pre_survey_id"],
-              "post_survey_id": created["comparison"]["post_survey_id"]},
+              "post_survey_id": created["comparison"]["post_survey_id"],
+              "method": "threshold"},
         headers=auth,
     ).json()["job"]  # fmt: skip
     fail_job(job["id"], "align", "the disk is full")

@@ -60,7 +60,7 @@ def finished_comparison_in_site(client: TestClient, auth: dict, pair: DsmPairPat
     post = upload_dsm(client, auth, site, pair.post, "2026-07-01T10:00:00Z")
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
-        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"]},
+        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "method": "threshold"},
         headers=auth,
     ).json()
     run_job_inline(created["job"]["id"])

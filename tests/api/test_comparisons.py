@@ -49,10 +49,13 @@ def test_creating_a_comparison_queues_its_first_stage(
     assert response.status_code == 202, response.text
     body = response.json()
     assert body["comparison"]["status"] == "queued"
-    assert body["comparison"]["method"] == "threshold"
+    # The detection model ships with the package: the cnn method is the default, and the
+    # comparison records which model it will run.
+    assert body["comparison"]["method"] == "cnn"
+    assert body["comparison"]["parameters"]["cnn"]["model"].startswith("slidenet-default@")
     job = body["job"]
     assert job["state"] == "queued"
-    assert [s["stage"] for s in job["stages"]] == ["align", "coregister", "difference", "vectorize"]
+    assert [s["stage"] for s in job["stages"]] == ["align", "coregister", "difference", "detect"]
     assert all(s["state"] == "pending" and s["progress"] == 0 for s in job["stages"])
     messages = broker_messages(app)
     assert len(messages) == 1
@@ -63,7 +66,7 @@ def test_creating_a_comparison_queues_its_first_stage(
 def test_finished_comparison_serves_detections_and_products(
     client: TestClient, auth: dict, site_id: int, surveys: tuple[int, int]
 ) -> None:
-    created = create(client, auth, site_id, *surveys).json()
+    created = create(client, auth, site_id, *surveys, method="threshold").json()
     comparison_id, job_id = created["comparison"]["id"], created["job"]["id"]
     run_job_inline(job_id)
 
@@ -100,7 +103,7 @@ def test_finished_comparison_serves_detections_and_products(
     lon, lat = polygon.centroid.coords[0]
     assert 6 < lon < 12 and 0 < lat < 84
     props = feature["properties"]
-    assert props["method"] == "threshold"
+    assert props["method"] == "threshold" and props["model_version"] is None
     assert props["area_m2"] > 0 and props["volume_loss_m3"] > 0 and props["volume_gain_m3"] > 0
     assert 0 <= props["score"] <= 1
     assert comparison["summary"]["detections"] == 1
@@ -123,6 +126,11 @@ def test_finished_comparison_serves_detections_and_products(
     ("change", "status", "message"),
     [
         ({"method": "magic"}, 422, "unknown method 'magic'"),
+        (
+            {"method": "cnn", "parameters": {"cnn": {"model": "/etc/passwd"}}},
+            422,
+            "no registered detection model '/etc/passwd'",
+        ),
         ({"post_survey_id": "pre"}, 422, "same survey"),
         ({"post_survey_id": 999}, 422, "post survey 999 does not exist"),
         ({"parameters": {"no_such_option": 1}}, 422, "invalid parameters"),

@@ -39,7 +39,7 @@ def submit_comparison(client, auth, paths: DsmPairPaths) -> tuple[int, int]:
         ids.append(response.json()["id"])
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
-        json={"pre_survey_id": ids[0], "post_survey_id": ids[1]},
+        json={"pre_survey_id": ids[0], "post_survey_id": ids[1], "method": "threshold"},
         headers=auth,
     )
     assert created.status_code == 202, created.text

@@ -24,6 +24,8 @@ def test_detect_writes_geojson_and_prints_one_summary_line(slide_run, tmp_path):
             str(work),
             "--min-area",
             "30",
+            "--method",
+            "threshold",
         ],
     )
     assert result.exit_code == 0, result.output
@@ -55,6 +57,8 @@ def test_fixed_lod_and_temporary_work_dir(slide_run, tmp_path, monkeypatch):
             str(out),
             "--lod",
             "5",
+            "--method",
+            "threshold",
         ],
     )
     assert result.exit_code == 0, result.output

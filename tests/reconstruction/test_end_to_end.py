@@ -27,23 +27,11 @@ from rio_cogeo.cogeo import cog_validate
 from worker.commands.reconstruct import reconstruct
 from worker.pipeline.reconstruction import ReconstructionOptions, run_stage
 from worker.pipeline.trajectory import read_trajectory_csv
-from worker.simulator.simulate import SimulationOptions, simulate_scenario
 
 
 @pytest.fixture(scope="session")
-def survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    out = tmp_path_factory.mktemp("sim")
-    options = SimulationOptions(
-        steps=1,
-        video_seconds=6.0,
-        fps=15.0,
-        registration=False,
-        write_ortho=False,
-        workers=1,
-        seed=3,
-    )
-    simulate_scenario("paper-mounds", out, options)
-    return out / "step1" / "flight1", out / "step1" / "truth"
+def survey(simulated_mounds_survey: tuple[Path, Path]) -> tuple[Path, Path]:
+    return simulated_mounds_survey
 
 
 def run_cli(*args: object) -> tuple[int, str]:

@@ -173,6 +173,23 @@ def test_straight_track_needs_the_attitude():
     assert np.median(without) > 5 * np.median(with_att)
 
 
+def test_straight_track_without_any_attitude_assumes_a_nadir_camera():
+    """Most DJI SRT files log no angles: a straight pass then relies on the nadir prior."""
+    path, heads = straight_line()
+    nadir, free = [], []
+    for seed in range(5):
+        traj, log, err = flight(path, heads, seed=seed)
+        log.attitude.clear()
+        assumed = georeference(traj, log, 0.0)
+        unknown = georeference(traj, log, 0.0, GeorefOptions(sigma_nadir_deg=None))
+        assert not assumed.attitude_used and assumed.attitude_source == "none"
+        assert any("straight down" in w for w in assumed.warnings)
+        nadir.append(np.median(ground_error(assumed, err)))
+        free.append(np.median(ground_error(unknown, err)))
+    assert np.median(nadir) < 0.7
+    assert np.median(free) > 5 * np.median(nadir)
+
+
 def test_outliers_are_rejected():
     path, heads = lawnmower()
     traj, log, err = flight(path, heads, seed=4, outliers=0.05)

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from worker.pipeline.atomic import atomic_path
-from worker.pipeline.comparison import METHODS, ComparisonOptions, compare_dsms
+from worker.pipeline.comparison import METHODS, ComparisonOptions, compare_dsms, default_method
 from worker.pipeline.errors import InputError
 
 EXIT_INPUT_ERROR = 2
@@ -38,7 +38,18 @@ EXIT_INPUT_ERROR = 2
     type=click.Path(path_type=Path),
     help="Where to write the detections (GeoJSON FeatureCollection).",
 )
-@click.option("--method", type=click.Choice(METHODS), default="threshold", show_default=True)
+@click.option(
+    "--method",
+    type=click.Choice(METHODS),
+    default=None,
+    help="cnn: the detection model (the default when one is installed); threshold: Δh "
+    "beyond the level of detection.",
+)
+@click.option(
+    "--model",
+    default=None,
+    help="cnn: a model card (.json) or weights (.pt) path; default: the shipped model.",
+)
 @click.option(
     "--work-dir",
     type=click.Path(path_type=Path),
@@ -58,15 +69,22 @@ def detect(
     pre_path: Path,
     post_path: Path,
     out_path: Path,
-    method: str,
+    method: str | None,
+    model: str | None,
     work_dir: Path | None,
     min_area: float | None,
     lod: float | None,
 ) -> None:
     """Detect landslides between two DSMs; print a one-line JSON summary."""
-    options = ComparisonOptions(method=method)
+    options = ComparisonOptions(method=method or default_method())
+    if model is not None:
+        if options.method != "cnn":
+            click.echo("error: --model needs --method cnn", err=True)
+            raise SystemExit(EXIT_INPUT_ERROR)
+        options.cnn.model = model
     if min_area is not None:
         options.vectorize.min_area_m2 = min_area
+        options.cnn.min_area_m2 = min_area
     if lod is not None:
         options.difference.lod_m = lod
     temporary = None

@@ -1,19 +1,20 @@
-"""The comparison job: align, co-register, difference and vectorize two survey DSMs."""
+"""The comparison job: align, co-register, difference, then vectorize (threshold method) or
+detect (cnn method) two survey DSMs."""
 
 import json
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import rasterio
 from shapely.geometry import shape
-from sqlalchemy import delete, select
+from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
 from backend.config import get_settings
-from backend.db.models import Comparison, Detection, Job, JobState, Product, StoredFile
-from backend.services import alerts
-from backend.storage import LocalStorage, file_digest
+from backend.db.models import Comparison, Detection, Job, JobState
+from backend.services import alerts, models
+from backend.storage import LocalStorage
+from worker.jobs.products import COG_MEDIA_TYPE, register_product
 from worker.pipeline import comparison as pipeline
 from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.progress import ProgressFn
@@ -27,13 +28,21 @@ STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
         "significance": ("significance.tif", "image/tiff"),
     },
     "vectorize": {"detections": ("detections.geojson", "application/geo+json")},
+    "detect": {
+        "probability": ("probability.tif", "image/tiff"),
+        "cells": ("cells.geojson", "application/geo+json"),
+        "detections": ("detections.geojson", "application/geo+json"),
+    },
 }
 RASTER_ROLES: dict[str, RasterRole] = {
     "post_coregistered": RasterRole.elevation,
     "dh": RasterRole.elevation,
     "significance": RasterRole.mask,
+    # A continuous 0-1 field: overviews average it, as elevations.
+    "probability": RasterRole.elevation,
 }
-COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
+# Stages whose detections.geojson becomes the comparison's Detection rows.
+DETECTION_STAGES = ("vectorize", "detect")
 
 
 def comparison_folder(comparison_id: int) -> str:
@@ -43,6 +52,7 @@ def comparison_folder(comparison_id: int) -> str:
 
 class ComparisonJob:
     name = "comparison"
+    # The threshold method's stages; a job records its own, by method (stages_for).
     stages: tuple[str, ...] = tuple(pipeline.STAGES)
 
     def __init__(self, storage: LocalStorage | None = None) -> None:
@@ -66,12 +76,21 @@ class ComparisonJob:
             if dsm is None:
                 raise LookupError(f"survey {survey.id} has no DSM product")
             dsm_paths.append(str(self.storage.absolute(dsm.file.path)))
+        options = dict(comparison.parameters)
+        if comparison.method == "cnn":
+            # The parameters name a registered model ("name@version"); the library takes
+            # the path of its card.
+            cnn = dict(options.get("cnn") or {})
+            row = models.find_model(session, cnn.get("model") or "") if cnn.get("model") else None
+            row = row or models.default_model(session)
+            cnn["model"] = str(models.card_path(row, self.storage)) if row else None
+            options["cnn"] = cnn
         return {
             "pre_path": dsm_paths[0],
             "post_path": dsm_paths[1],
             "work_dir": str(self.storage.absolute(comparison_folder(comparison.id))),
             "method": comparison.method,
-            "options": comparison.parameters,
+            "options": options,
         }
 
     def run_stage(self, stage: str, inputs: dict[str, Any], progress: ProgressFn) -> dict[str, Any]:
@@ -98,39 +117,17 @@ class ComparisonJob:
                     self.storage.absolute(relative), self.storage.absolute(cog), RASTER_ROLES[kind]
                 )
                 relative, media_type = cog, COG_MEDIA_TYPE
-            self._register_product(session, comparison, kind, relative, media_type)
-        if stage == "vectorize":
+            register_product(
+                session,
+                self.storage,
+                site_id=comparison.site_id,
+                comparison_id=comparison.id,
+                kind=kind,
+                relative=relative,
+                media_type=media_type,
+            )
+        if stage in DETECTION_STAGES:
             self._store_detections(session, comparison, f"{folder}/{pipeline.DETECTIONS}")
-
-    def _register_product(
-        self, session: Session, comparison: Comparison, kind: str, relative: str, media_type: str
-    ) -> None:
-        path = self.storage.absolute(relative)
-        size, sha256 = file_digest(path)
-        stored = session.scalar(select(StoredFile).where(StoredFile.path == relative))
-        if stored is None:
-            stored = StoredFile(
-                path=relative, size_bytes=size, sha256=sha256, media_type=media_type
-            )
-            session.add(stored)
-            session.flush()
-        else:
-            stored.size_bytes, stored.sha256 = size, sha256
-        product = session.scalar(
-            select(Product).where(Product.comparison_id == comparison.id, Product.kind == kind)
-        )
-        if product is None:
-            session.add(
-                Product(
-                    site_id=comparison.site_id,
-                    comparison_id=comparison.id,
-                    kind=kind,
-                    file_id=stored.id,
-                    crs=None if media_type.endswith("json") else _raster_crs(path),
-                )
-            )
-        else:
-            product.file_id = stored.id
 
     def _store_detections(self, session: Session, comparison: Comparison, relative: str) -> None:
         collection = json.loads(self.storage.absolute(relative).read_text())
@@ -152,6 +149,7 @@ class ComparisonJob:
                     max_abs_dh_m=props["max_abs_dh_m"],
                     score=props["score"],
                     method=props.get("method", comparison.method),
+                    model_version=props.get("model"),
                 )
             )
 
@@ -172,6 +170,10 @@ class ComparisonJob:
         session.flush()
         alerts.guarded(alerts.comparison_succeeded, session, comparison)
 
+    def on_retry(self, session: Session, job: Job) -> None:
+        comparison = self._comparison(session, job)
+        comparison.status, comparison.error, comparison.finished_at = JobState.queued, None, None
+
     def on_failure(self, session: Session, job: Job, reason: str) -> None:
         comparison = session.get(Comparison, job.comparison_id)
         if comparison is not None:
@@ -183,8 +185,3 @@ class ComparisonJob:
 def geometry_bbox(geometry: dict[str, Any]) -> tuple[float, float, float, float]:
     min_x, min_y, max_x, max_y = shape(geometry).bounds
     return min_x, min_y, max_x, max_y
-
-
-def _raster_crs(path: Path) -> str | None:
-    with rasterio.open(path) as src:
-        return src.crs.to_string() if src.crs else None

@@ -26,3 +26,6 @@ class JobKind(Protocol):
     def on_success(self, session: Session, job: Job) -> None: ...
 
     def on_failure(self, session: Session, job: Job, reason: str) -> None: ...
+
+    def on_retry(self, session: Session, job: Job) -> None:
+        """A failed job runs again: put what it owns back to its queued state."""

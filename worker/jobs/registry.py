@@ -2,8 +2,12 @@
 
 from worker.jobs.comparison import ComparisonJob
 from worker.jobs.kind import JobKind
+from worker.jobs.reconstruction import ReconstructionJob
 
-JOB_KINDS: dict[str, JobKind] = {ComparisonJob.name: ComparisonJob()}
+JOB_KINDS: dict[str, JobKind] = {
+    ComparisonJob.name: ComparisonJob(),
+    ReconstructionJob.name: ReconstructionJob(),
+}
 
 
 def job_kind(name: str) -> JobKind:

@@ -1,4 +1,11 @@
-"""The whole DSM comparison: align -> coregister -> difference -> vectorize.
+"""The whole DSM comparison: align -> coregister -> difference -> vectorize | detect.
+
+The stages depend on the detection method (`stages_for(method)`):
+
+    threshold   align -> coregister -> difference -> vectorize
+    cnn         align -> coregister -> difference -> detect
+
+`STAGES` is the threshold method's list (kept for callers that predate the cnn method).
 
 Each stage reads only the caller's two DSMs or files that earlier stages wrote into
 `work_dir`, and overwrites its own outputs atomically, so a stage can be re-run on its
@@ -10,7 +17,14 @@ own (one Celery task per stage). Layout of `work_dir`:
     stable_mask.tif        coregister   uint8: 1 stable terrain, 0 excluded, 255 nodata
     dh.tif                 difference   post - pre in metres (float32, -9999)
     significance.tif       difference   uint8: 0 none, 1 loss, 2 gain, 255 nodata
-    detections.geojson     vectorize    FeatureCollection, WGS84 lon/lat
+    detections.geojson     vectorize    FeatureCollection, WGS84 lon/lat (threshold)
+    probability.tif        detect       per-pixel landslide probability, COG (cnn)
+    cells.geojson          detect       positive 32-pixel cells, WGS84 (cnn)
+    detections.geojson     detect       merged landslide polygons, WGS84 (cnn)
+
+The cnn method's detect stage runs the detection model (worker/pipeline/cnn) on the
+aligned pre DSM and the co-registered post DSM; its polygons carry the same properties
+as the threshold method's, plus the model version (see cnn/detect_stage.py).
 """
 
 from __future__ import annotations
@@ -23,20 +37,31 @@ from pathlib import Path
 from typing import Any
 
 from worker.pipeline.align import AlignOptions, align
+from worker.pipeline.cnn.options import CnnOptions, default_model_path
 from worker.pipeline.coregister import CoregisterOptions, coregister
 from worker.pipeline.difference import DifferenceOptions, difference
 from worker.pipeline.errors import InputError, PipelineError
 from worker.pipeline.progress import ProgressFn, no_progress
-from worker.pipeline.vectorize import METHODS, VectorizeOptions, vectorize
+from worker.pipeline.vectorize import VectorizeOptions, vectorize
 
-STAGES = ("align", "coregister", "difference", "vectorize")
+METHODS = ("threshold", "cnn")
+STAGES_BY_METHOD: dict[str, tuple[str, ...]] = {
+    "threshold": ("align", "coregister", "difference", "vectorize"),
+    "cnn": ("align", "coregister", "difference", "detect"),
+}
+STAGES = STAGES_BY_METHOD["threshold"]
+ALL_STAGES = ("align", "coregister", "difference", "vectorize", "detect")
 __all__ = [
+    "ALL_STAGES",
     "METHODS",
     "STAGES",
+    "STAGES_BY_METHOD",
     "ComparisonOptions",
     "ComparisonResult",
     "compare_dsms",
+    "default_method",
     "run_stage",
+    "stages_for",
     "summarize",
 ]
 
@@ -47,15 +72,40 @@ STABLE_MASK = "stable_mask.tif"
 DH = "dh.tif"
 SIGNIFICANCE = "significance.tif"
 DETECTIONS = "detections.geojson"
+PROBABILITY = "probability.tif"
+CELLS = "cells.geojson"
 
 _INPUTS = {
     "align": (),
     "coregister": (PRE_ALIGNED, POST_ALIGNED),
     "difference": (PRE_ALIGNED, POST_COREGISTERED, STABLE_MASK),
     "vectorize": (DH, SIGNIFICANCE),
+    "detect": (PRE_ALIGNED, POST_COREGISTERED, DH, SIGNIFICANCE),
 }
 # Share of the whole comparison's progress bar taken by each stage (from measured times).
-_WEIGHTS = {"align": 0.1, "coregister": 0.75, "difference": 0.08, "vectorize": 0.07}
+_WEIGHTS = {
+    "threshold": {"align": 0.1, "coregister": 0.75, "difference": 0.08, "vectorize": 0.07},
+    "cnn": {"align": 0.1, "coregister": 0.6, "difference": 0.06, "detect": 0.24},
+}
+
+
+def stages_for(method: str) -> tuple[str, ...]:
+    """The stage names of a detection method, in order."""
+    try:
+        return STAGES_BY_METHOD[method]
+    except KeyError:
+        raise InputError(
+            f"unknown detection method {method!r}; available: {', '.join(METHODS)}"
+        ) from None
+
+
+def default_method() -> str:
+    """ "cnn" when detection weights ship with this installation, else "threshold".
+
+    ComparisonOptions itself defaults to "threshold" so that stored parameters and
+    existing callers keep their meaning; product defaults (API, CLI) use this.
+    """
+    return "cnn" if default_model_path() is not None else "threshold"
 
 
 @dataclass
@@ -64,6 +114,7 @@ class ComparisonOptions:
     coregister: CoregisterOptions = field(default_factory=CoregisterOptions)
     difference: DifferenceOptions = field(default_factory=DifferenceOptions)
     vectorize: VectorizeOptions = field(default_factory=VectorizeOptions)
+    cnn: CnnOptions = field(default_factory=CnnOptions)
     method: str = "threshold"
 
     def to_dict(self) -> dict[str, Any]:
@@ -82,6 +133,11 @@ class ComparisonOptions:
                 continue
             if f.name == "method":
                 kwargs["method"] = str(data["method"])
+                if kwargs["method"] not in METHODS:
+                    raise InputError(
+                        f"unknown detection method {kwargs['method']!r}; "
+                        f"available: {', '.join(METHODS)}"
+                    )
                 continue
             option_cls = type(getattr(cls(), f.name))
             kwargs[f.name] = _options_from_dict(option_cls, f.name, data[f.name])
@@ -109,13 +165,13 @@ def compare_dsms(
     options: ComparisonOptions | None = None,
     progress: ProgressFn = no_progress,
 ) -> ComparisonResult:
-    """Run every stage in order; outputs go to the fixed layout in `work_dir`."""
+    """Run every stage of the method in order; outputs go to the layout in `work_dir`."""
     options = options or ComparisonOptions()
     start = time.perf_counter()
     results: dict[str, dict[str, Any]] = {}
     done = 0.0
-    for stage in STAGES:
-        weight = _WEIGHTS[stage]
+    for stage in stages_for(options.method):
+        weight = _WEIGHTS[options.method][stage]
 
         def stage_progress(fraction: float, done: float = done, weight: float = weight) -> None:
             progress(min(1.0, done + weight * fraction))
@@ -136,11 +192,19 @@ def run_stage(
     options: ComparisonOptions | Mapping[str, Any] | None = None,
     progress: ProgressFn = no_progress,
 ) -> dict[str, Any]:
-    """Run one stage on the files of earlier stages in `work_dir`; return its result dict."""
-    if stage not in STAGES:
-        raise ValueError(f"unknown stage {stage!r}; stages are {', '.join(STAGES)}")
+    """Run one stage on the files of earlier stages in `work_dir`; return its result dict.
+
+    The stage must belong to the method of `options` (see `stages_for`).
+    """
+    if stage not in ALL_STAGES:
+        raise ValueError(f"unknown stage {stage!r}; stages are {', '.join(ALL_STAGES)}")
     if not isinstance(options, ComparisonOptions):
         options = ComparisonOptions.from_dict(options)
+    if stage not in stages_for(options.method):
+        raise InputError(
+            f"stage {stage!r} is not a stage of the {options.method} method; its stages "
+            f"are {', '.join(stages_for(options.method))}"
+        )
     work = Path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
     missing = [name for name in _INPUTS[stage] if not (work / name).exists()]
@@ -177,6 +241,20 @@ def run_stage(
             stable_mask_path=work / STABLE_MASK,
             progress=progress,
         )
+    elif stage == "detect":
+        from worker.pipeline.cnn.detect_stage import detect_cnn  # torch only when needed
+
+        result = detect_cnn(
+            work / PRE_ALIGNED,
+            work / POST_COREGISTERED,
+            work / DH,
+            work / SIGNIFICANCE,
+            work / PROBABILITY,
+            work / CELLS,
+            work / DETECTIONS,
+            options.cnn,
+            progress,
+        )
     else:
         result = vectorize(
             work / DH,
@@ -194,7 +272,7 @@ def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 
     shift_m is the correction applied to the post DSM (see coregister.py).
     """
-    found = results.get("vectorize", {})
+    found = results.get("vectorize") or results.get("detect") or {}
     shift = results.get("coregister", {})
     return {
         "detections": int(found.get("detections", 0)),

@@ -50,6 +50,7 @@ from worker.pipeline.frames import (
     iter_prepared_frames,
     prepare_video_frames,
     read_frame_scan,
+    tracking_frames,
 )
 from worker.pipeline.georef import offset_residual_fn, survey_epsg
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
@@ -371,9 +372,16 @@ def reconstruct(
     out: dict[str, Any] = {"method": method}
     if method == "slam":
         scan = read_frame_scan(work_dir / FRAMES_DIR / "frames.csv")
-        kept = int(scan.kept.sum())
-        stream = ((f.t, f.index, f.image) for f in iter_prepared_frames(work_dir / FRAMES_DIR))
-        sparse = run_slam(stream, intr, options.slam, progress, total_frames=kept)
+        wanted = set(
+            tracking_frames(scan, options.slam.track_step_px, options.slam.track_max_gap_s).tolist()
+        )
+        stream = (
+            (f.t, f.index, f.image)
+            for f in iter_prepared_frames(work_dir / FRAMES_DIR)
+            if f.index in wanted
+        )
+        sparse = run_slam(stream, intr, options.slam, progress, total_frames=len(wanted))
+        out["tracked_frames"] = len(wanted)
         duration = float(scan.t[-1] - scan.t[0]) if scan.t.size > 1 else 0.0
     else:
         log = _load_log(ing, options)

@@ -17,12 +17,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from worker.pipeline.atomic import atomic_path
 from worker.pipeline.errors import InputError
+from worker.pipeline.geo import transformer_to_wgs84
 
 _COLUMNS = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "keyframe")
 
@@ -101,3 +103,28 @@ def read_trajectory_csv(path: Path) -> Trajectory:
     a = np.array(rows)
     rotations = Rotation.from_quat(a[:, 4:8], scalar_first=True).as_matrix()
     return Trajectory(a[:, 0], a[:, 1:4], rotations, a[:, 8] > 0.5, crs)
+
+
+def trajectory_geojson(trajectory: Trajectory) -> dict[str, Any]:
+    """The flight path as a GeoJSON Feature (WGS84 lon/lat/height, RFC 7946) for maps.
+
+    Needs a georeferenced trajectory (`crs` set); `times_s` gives each vertex's video time.
+    """
+    if not trajectory.crs:
+        raise InputError("the trajectory is not georeferenced (no CRS)")
+    to_wgs84 = transformer_to_wgs84(trajectory.crs)
+    lon, lat = to_wgs84.transform(trajectory.positions[:, 0], trajectory.positions[:, 1])
+    coords = [
+        [round(float(x), 7), round(float(y), 7), round(float(z), 2)]
+        for x, y, z in zip(lon, lat, trajectory.positions[:, 2], strict=True)
+    ]
+    return {
+        "type": "Feature",
+        "geometry": {"type": "LineString", "coordinates": coords},
+        "properties": {
+            "times_s": [round(float(t), 3) for t in trajectory.t],
+            "keyframes": int(trajectory.keyframe.sum()),
+            "length_m": round(trajectory.length_m(), 2),
+            "source_crs": trajectory.crs,
+        },
+    }

@@ -4,8 +4,9 @@ from sqlalchemy import select
 from backend.api.deps import CeleryDep, SessionDep, SiteDep, owned_by_site
 from backend.api.schemas import JobOut
 from backend.api.serializers import job_out
-from backend.db.models import Comparison, Job, JobState, Site
+from backend.db.models import Job, JobState, Site
 from backend.services.jobs import QueueUnavailable, reset_failed, start_job
+from worker.jobs.registry import job_kind
 
 router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
 
@@ -32,9 +33,7 @@ def retry_job(job_id: int, site: SiteDep, session: SessionDep, celery: CeleryDep
     if job.state != JobState.failed:
         raise HTTPException(status.HTTP_409_CONFLICT, f"job {job.id} is {job.state}, not failed")
     reset_failed(job)
-    if job.comparison_id is not None:
-        comparison = session.get(Comparison, job.comparison_id)
-        comparison.status, comparison.error, comparison.finished_at = JobState.queued, None, None
+    job_kind(job.kind).on_retry(session, job)
     session.commit()
     try:
         start_job(celery, session, job)

@@ -30,6 +30,8 @@ from backend.services.tiles import (
     TileOutsideBounds,
     WmtsLayer,
     check_colormap,
+    default_rescale,
+    is_geotiff,
     layer_info,
     parse_rescale,
     render_tile,
@@ -84,6 +86,12 @@ def _layer_source(
         raise HTTPException(
             status.HTTP_404_NOT_FOUND,
             f"{owner[:-1]} {owner_id} has no {spec.product_kind} product yet",
+        )
+    if not is_geotiff(path):
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            f"the {spec.product_kind} product of {owner[:-1]} {owner_id} is not a GeoTIFF; "
+            "only GeoTIFFs are served as tiles",
         )
     return LayerSource(site.id, owner, owner_id, spec, path)
 
@@ -144,6 +152,12 @@ async def _tilejson(source: LayerSource, request: Request) -> dict:
         "maxzoom": info.maxzoom,
         "bounds": [west, south, east, north],
         "center": [(west + east) / 2, (south + north) / 2, max(info.minzoom, info.maxzoom - 2)],
+        # The default style, for a legend that matches the tiles (hillshade has none).
+        "colormap": source.spec.default_colormap,
+        "rescale": None
+        if source.spec.default_colormap is None
+        else list(await run_in_threadpool(default_rescale, source.spec, source.path)),
+        "unit": "m",
     }
 
 
@@ -218,7 +232,7 @@ def _layers_of(
     for owner, row in owners:
         for spec in LAYERS[owner].values():
             path = _product_path(session, storage, owner, row.id, spec.product_kind)  # type: ignore[attr-defined]
-            if path is not None:
+            if path is not None and is_geotiff(path):
                 sources.append(LayerSource(site.id, owner, row.id, spec, path))  # type: ignore[attr-defined]
     return sources
 

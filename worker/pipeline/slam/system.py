@@ -42,6 +42,9 @@ class SlamOptions:
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
     keyframes: KeyframePolicy = field(default_factory=KeyframePolicy)
     densify: DensifyOptions = field(default_factory=DensifyOptions)
+    # Frames closer than this in image motion are skipped (see frames.tracking_frames).
+    track_step_px: float = 12.0
+    track_max_gap_s: float = 0.5
     init_parallax_px: float = 25.0
     init_min_points: int = 80
     init_min_angle_deg: float = 1.0

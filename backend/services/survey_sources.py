@@ -1,0 +1,254 @@
+"""Surveys made from drone video with its flight log, or from a set of geotagged photos.
+
+A source survey is created first (status `receiving`), its files are added one by one,
+each checked as it arrives (the video decodes, the log parses, the photo is geotagged),
+and `submit_reconstruction` queues the job that turns them into a DSM (worker/jobs/
+reconstruction.py). A file that fails its check is removed with no row left behind.
+"""
+
+import re
+import tempfile
+from collections.abc import AsyncIterator
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from celery import Celery
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+
+from backend.db.models import (
+    Job,
+    Site,
+    StoredFile,
+    Survey,
+    SurveyFile,
+    SurveyKind,
+    SurveyStatus,
+)
+from backend.services.jobs import QueueUnavailable, new_job, start_job
+from backend.storage import LocalStorage, SavedFile
+from worker.jobs.reconstruction import ReconstructionJob
+from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.flight_log import read_flight_log
+from worker.pipeline.ingest.images import read_image_metadata
+from worker.pipeline.ingest.video import probe_video
+from worker.pipeline.reconstruction import ReconstructionOptions
+
+ROLES = ("video", "log", "image")
+SUFFIXES = {
+    "video": (".mp4", ".mov"),
+    "log": (".srt", ".csv", ".txt"),
+    "image": (".jpg", ".jpeg"),
+}
+ROLES_OF_KIND = {SurveyKind.video: ("video", "log"), SurveyKind.images: ("image",)}
+MIN_IMAGES = 3
+MEDIA_TYPES = {"video": "video/mp4", "log": "text/plain", "image": "image/jpeg"}
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._ ()+-]{0,254}")
+
+
+class SourceRejected(ValueError):
+    """The request cannot be done on this survey; the message says why (HTTP 409/422)."""
+
+
+def create_source_survey(
+    session: Session,
+    site: Site,
+    *,
+    kind: SurveyKind,
+    name: str,
+    captured_at: datetime,
+    options: dict[str, Any] | None = None,
+) -> Survey:
+    """A new video or image-set survey waiting for its files."""
+    if kind not in ROLES_OF_KIND:
+        raise InputError(f"a {kind.value} survey is not made from files; upload the DSM instead")
+    parsed = ReconstructionOptions.from_dict(options or {})  # unknown keys fail here, clearly
+    survey = Survey(
+        site=site,
+        name=name,
+        captured_at=captured_at,
+        kind=kind,
+        status=SurveyStatus.receiving,
+        options=parsed.to_dict() if options else {},
+    )
+    session.add(survey)
+    session.commit()
+    return survey
+
+
+def check_file_name(name: str, role: str) -> str:
+    """The name as it will be kept; refuses paths and names that a file system dislikes."""
+    if role not in ROLES:
+        raise InputError(f"unknown file role {role!r}; roles are {', '.join(ROLES)}")
+    if not _SAFE_NAME.fullmatch(name) or ".." in name:
+        raise InputError(
+            f"file name {name!r} is not accepted: use letters, digits, '.', '_', '-' "
+            "and spaces, no folders"
+        )
+    if not name.lower().endswith(SUFFIXES[role]):
+        raise InputError(f"{name}: a {role} file must end with {' or '.join(SUFFIXES[role])}")
+    return name
+
+
+def _check_role(survey: Survey, role: str, name: str) -> None:
+    if survey.status != SurveyStatus.receiving:
+        raise SourceRejected(
+            f"survey {survey.id} is {survey.status.value}; files can only be added before "
+            "processing starts"
+        )
+    allowed = ROLES_OF_KIND.get(survey.kind, ())
+    if role not in allowed:
+        raise SourceRejected(
+            f"a {survey.kind.value} survey takes {' and '.join(allowed)} files, not {role}"
+        )
+    for existing in survey.files:
+        if existing.name == name:
+            raise SourceRejected(f"survey {survey.id} already has a file named {name!r}")
+        if role in ("video", "log") and existing.role == role:
+            raise SourceRejected(
+                f"survey {survey.id} already has a {role} ({existing.name}); delete it first"
+            )
+
+
+def check_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
+    """Read the file as the pipeline will; raise InputError naming what is wrong.
+
+    The readers name the file in their messages: they read it through a link named as
+    the user's file, not as its storage name.
+    """
+    with tempfile.TemporaryDirectory(prefix="slidewatch-check-") as folder:
+        link = Path(folder) / name
+        link.symlink_to(Path(path).resolve())
+        return _read_source_file(link, role, name)
+
+
+def _read_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
+    if role == "video":
+        info = probe_video(path)
+        return {"duration_s": info.duration_s, "width": info.width, "height": info.height}
+    if role == "log":
+        log = read_flight_log(path)
+        return {"records": len(log), "format": log.source_format}
+    meta = read_image_metadata(path)
+    if not meta.has_gps:
+        raise InputError(
+            f"{name}: no GPS position in its EXIF or XMP; slidewatch needs geotagged photos"
+        )
+    return {"width": meta.width, "height": meta.height}
+
+
+def _record(
+    session: Session, storage: LocalStorage, survey: Survey, role: str, name: str, saved: SavedFile
+) -> SurveyFile:
+    try:
+        check_source_file(storage.absolute(saved.relative_path), role, name)
+        stored = StoredFile(
+            path=saved.relative_path,
+            size_bytes=saved.size_bytes,
+            sha256=saved.sha256,
+            media_type=MEDIA_TYPES[role],
+            original_name=name,
+        )
+        survey_file = SurveyFile(survey=survey, role=role, name=name, file=stored)
+        session.add_all([stored, survey_file])
+        session.commit()
+    except BaseException:
+        session.rollback()
+        storage.delete(saved.relative_path)
+        raise
+    return survey_file
+
+
+def _folder(survey: Survey) -> str:
+    return f"surveys/{survey.site_id}/{survey.id}/files"
+
+
+def add_survey_file(
+    session: Session,
+    storage: LocalStorage,
+    survey: Survey,
+    *,
+    role: str,
+    filename: str,
+    source: Path,
+) -> SurveyFile:
+    """Move a complete file (e.g. a finished resumable upload) into the survey."""
+    name = check_file_name(filename, role)
+    _check_role(survey, role, name)
+    saved = storage.adopt_file(Path(source), _folder(survey), Path(name).suffix.lower())
+    return _record(session, storage, survey, role, name, saved)
+
+
+async def add_survey_file_from_stream(
+    session: Session,
+    storage: LocalStorage,
+    survey: Survey,
+    chunks: AsyncIterator[bytes],
+    *,
+    role: str,
+    filename: str,
+    max_bytes: int,
+) -> SurveyFile:
+    """Stream a request body into the survey (raises UploadTooLarge past `max_bytes`)."""
+    name = check_file_name(filename, role)
+    _check_role(survey, role, name)
+    saved = await storage.save_stream(chunks, _folder(survey), Path(name).suffix.lower(), max_bytes)
+    return await run_in_threadpool(_record, session, storage, survey, role, name, saved)
+
+
+def remove_survey_file(
+    session: Session, storage: LocalStorage, survey: Survey, file_id: int
+) -> None:
+    survey_file = session.get(SurveyFile, file_id)
+    if survey_file is None or survey_file.survey_id != survey.id:
+        raise LookupError(f"survey {survey.id} has no file {file_id}")
+    if survey.status != SurveyStatus.receiving:
+        raise SourceRejected(f"survey {survey.id} is {survey.status.value}; its files are in use")
+    path = survey_file.file.path
+    session.delete(survey_file)
+    session.delete(survey_file.file)
+    session.commit()
+    storage.delete(path)
+
+
+def missing_files(survey: Survey) -> str | None:
+    """What the survey still needs before it can be processed, in plain words."""
+    roles = [f.role for f in survey.files]
+    if survey.kind == SurveyKind.video:
+        needed = [r for r in ("video", "log") if r not in roles]
+        if needed:
+            return f"survey {survey.id} has no {' and no '.join(needed)} yet"
+        return None
+    if roles.count("image") < MIN_IMAGES:
+        return (
+            f"survey {survey.id} has {roles.count('image')} photos; "
+            f"at least {MIN_IMAGES} geotagged photos are needed"
+        )
+    return None
+
+
+def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> Job:
+    """Queue the job that reconstructs the survey's DSM from its files."""
+    if survey.status != SurveyStatus.receiving:
+        raise SourceRejected(
+            f"survey {survey.id} is {survey.status.value}; only a survey receiving files "
+            "can be submitted (retry a failed job through its job instead)"
+        )
+    missing = missing_files(survey)
+    if missing:
+        raise SourceRejected(missing)
+    survey.status = SurveyStatus.processing
+    survey.error = None
+    job = new_job(
+        survey.site_id, ReconstructionJob.name, ReconstructionJob.stages, survey_id=survey.id
+    )
+    session.add(job)
+    session.commit()
+    try:
+        start_job(celery, session, job)
+    except QueueUnavailable as exc:
+        survey.status, survey.error = SurveyStatus.failed, str(exc)
+        session.commit()
+        raise
+    return job

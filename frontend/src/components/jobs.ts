@@ -1,0 +1,118 @@
+// Processing jobs of the site with their stages, live through Server-Sent Events; a failed
+// job shows why and can be retried.
+
+import { ApiError, authHeaders, postJson } from "../api";
+import { escapeHtml, formatDateTime, formatPercent } from "../format";
+import { streamEvents } from "../sse";
+import type { Job } from "../types";
+
+const FINAL = new Set(["succeeded", "failed"]);
+
+// One name for one thing: the stage names are the pipeline's own.
+const STAGE_HELP: Record<string, string> = {
+  align: "both DSMs onto one grid",
+  coregister: "post DSM shifted onto pre",
+  difference: "Δh and its level of detection",
+  vectorize: "changes into polygons",
+  detect: "detection model on the DSMs",
+  ingest: "reading video and log",
+  frames: "choosing frames",
+  reconstruct: "3-D reconstruction",
+  georeference: "onto the ground",
+  dsm: "DSM from the points",
+};
+
+export function jobTitle(job: Job): string {
+  if (job.kind === "comparison") return `Comparison ${job.comparison_id ?? ""}`.trim();
+  if (job.kind === "reconstruction") return `Reconstruction of survey ${job.survey_id ?? ""}`.trim();
+  return `${job.kind} job`;
+}
+
+export class JobsPanel {
+  private jobs = new Map<number, Job>();
+  private streams = new Map<number, AbortController>();
+
+  constructor(
+    private readonly box: HTMLElement,
+    private readonly siteId: number,
+    private readonly timeZone: string,
+    private readonly onFinished: (job: Job) => void,
+  ) {
+    box.addEventListener("click", (event) => {
+      const button = (event.target as HTMLElement).closest<HTMLButtonElement>("button[data-retry]");
+      if (button) void this.retry(Number(button.dataset.retry), button);
+    });
+  }
+
+  show(jobs: Job[]): void {
+    for (const job of jobs) this.jobs.set(job.id, job);
+    this.render();
+    for (const job of jobs) if (!FINAL.has(job.state)) this.follow(job.id);
+  }
+
+  private follow(jobId: number): void {
+    if (this.streams.has(jobId)) return;
+    const controller = new AbortController();
+    this.streams.set(jobId, controller);
+    void streamEvents(`/api/v1/sites/${this.siteId}/jobs/${jobId}/events`, {
+      headers: authHeaders(),
+      signal: controller.signal,
+      onEvent: (event) => {
+        if (event.event !== "job") return;
+        const job = JSON.parse(event.data) as Job;
+        this.jobs.set(job.id, job);
+        this.render();
+        if (FINAL.has(job.state)) this.onFinished(job);
+      },
+      onEnd: () => this.streams.delete(jobId),
+    }).catch(() => this.streams.delete(jobId));
+  }
+
+  private async retry(jobId: number, button: HTMLButtonElement): Promise<void> {
+    button.disabled = true;
+    try {
+      const job = await postJson<Job>(`sites/${this.siteId}/jobs/${jobId}/retry`, {});
+      this.jobs.set(job.id, job);
+      this.render();
+      this.follow(job.id);
+    } catch (e) {
+      button.disabled = false;
+      const error = this.box.querySelector(`[data-job="${jobId}"] .retry-error`);
+      if (error) error.textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+    }
+  }
+
+  private render(): void {
+    const jobs = [...this.jobs.values()].sort((a, b) => b.id - a.id).slice(0, 8);
+    if (!jobs.length) {
+      this.box.innerHTML = `<p class="muted">Nothing is processing.</p>`;
+      return;
+    }
+    this.box.innerHTML = jobs
+      .map((job) => {
+        const stages = job.stages
+          .map(
+            (s) => `<li class="stage stage-${s.state}">
+              <label><span class="stage-name">${escapeHtml(s.stage)}</span> <span class="muted">${escapeHtml(STAGE_HELP[s.stage] ?? "")}</span>
+              <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(s.stage)} progress">${formatPercent(s.progress)}</progress></label>
+              <span class="stage-state">${s.state}${s.attempts > 1 ? `, attempt ${s.attempts}` : ""}</span>
+            </li>`,
+          )
+          .join("");
+        const failed = job.state === "failed";
+        return `<article class="job job-${job.state}" data-job="${job.id}" aria-live="polite">
+          <h3>${escapeHtml(jobTitle(job))} <span class="job-state">${job.state}</span> <span class="muted">${formatPercent(job.progress)}</span></h3>
+          <p class="muted">queued ${formatDateTime(job.created_at, this.timeZone)}${job.finished_at ? `, finished ${formatDateTime(job.finished_at, this.timeZone)}` : ""}</p>
+          <ol class="stages">${stages}</ol>
+          ${failed ? `<p class="error" role="alert">Failed: ${escapeHtml(job.error ?? "no reason given")}</p>
+            <button type="button" data-retry="${job.id}">Retry job ${job.id}</button><p class="error retry-error"></p>` : ""}
+        </article>`;
+      })
+      .join("");
+  }
+
+  close(): void {
+    for (const controller of this.streams.values()) controller.abort();
+    this.streams.clear();
+  }
+}

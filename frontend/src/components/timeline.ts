@@ -1,0 +1,47 @@
+// The site's surveys on a time axis, in the site's time zone.
+
+import { escapeHtml, formatDate, formatDateTime, formatMetres, parseApiTime } from "../format";
+import type { Survey } from "../types";
+
+/** Position (0..1) of each survey along the axis; one survey sits in the middle. */
+export function timelinePositions(surveys: Survey[]): number[] {
+  const times = surveys.map((s) => parseApiTime(s.captured_at).getTime());
+  const min = Math.min(...times);
+  const max = Math.max(...times);
+  return times.map((t) => (max > min ? (t - min) / (max - min) : 0.5));
+}
+
+const STATUS_WORDS: Record<Survey["status"], string> = {
+  receiving: "receiving files",
+  uploaded: "uploaded",
+  processing: "processing",
+  ready: "ready",
+  failed: "failed",
+};
+
+export function renderTimeline(surveys: Survey[], timeZone: string): string {
+  if (!surveys.length) return `<p class="muted">No survey yet: upload one below.</p>`;
+  const positions = timelinePositions(surveys);
+  const marks = surveys
+    .map(
+      (s, i) => `<li class="mark status-${s.status}" style="left:${(positions[i] * 100).toFixed(2)}%"
+        title="${escapeHtml(s.name)}, ${formatDateTime(s.captured_at, timeZone)}"><span class="visually-hidden">${escapeHtml(s.name)}</span></li>`,
+    )
+    .join("");
+  const first = formatDate(surveys[0].captured_at, timeZone);
+  const last = formatDate(surveys[surveys.length - 1].captured_at, timeZone);
+  const rows = surveys
+    .map(
+      (s) => `<li class="survey" data-survey-id="${s.id}">
+        <span class="name">${escapeHtml(s.name)}</span>
+        <span class="when">${formatDateTime(s.captured_at, timeZone)}</span>
+        <span class="what">${s.kind === "dsm" ? "DSM" : s.kind === "video" ? "video + log" : "photos"} ·
+          <span class="status">${STATUS_WORDS[s.status]}</span>${s.resolution_m ? ` · ${formatMetres(s.resolution_m)} pixels` : ""}</span>
+        ${s.error ? `<span class="error">${escapeHtml(s.error)}</span>` : ""}
+      </li>`,
+    )
+    .join("");
+  return `<div class="timeline" role="img" aria-label="Surveys from ${first} to ${last}"><ol class="axis">${marks}</ol>
+      <div class="axis-labels"><span>${first}</span><span>${last}</span></div></div>
+    <ol class="survey-list">${rows}</ol>`;
+}

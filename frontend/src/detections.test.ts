@@ -1,0 +1,38 @@
+import { describe, expect, it } from "vitest";
+import { detectionPopupHtml, detectionStyle, scoreColor } from "./detections";
+import type { DetectionProperties } from "./types";
+
+const props: DetectionProperties = {
+  comparison_id: 1,
+  area_m2: 1234.5,
+  volume_loss_m3: 2100,
+  volume_gain_m3: 15.25,
+  max_abs_dh_m: 4.321,
+  score: 0.9,
+  method: "cnn",
+  model_version: "slidenet-default@1",
+  feedback: { confirmed: 1, false_alarm: 0, latest: { verdict: "confirmed", author: "maria", at: "2026-07-02T08:00:00Z" } },
+};
+
+describe("detections", () => {
+  it("are redder and more opaque the higher their score", () => {
+    expect(scoreColor(0)).toBe("rgb(255, 237, 111)");
+    expect(scoreColor(1)).toBe("rgb(165, 0, 38)");
+    expect(detectionStyle(0.9).fillOpacity).toBeGreaterThan(detectionStyle(0.2).fillOpacity);
+  });
+
+  it("popup gives area, volumes, max |Δh|, method and model with units", () => {
+    const html = detectionPopupHtml(7, props, "Europe/Rome");
+    for (const text of ["1,235 m²", "2,100 m³", "15.3 m³", "4.32 m", "cnn", "slidenet-default@1", "confirmed landslide by maria, 2 Jul 2026, 10:00"]) {
+      expect(html).toContain(text);
+    }
+  });
+
+  it("says a threshold detection has no model, and escapes text", () => {
+    const html = detectionPopupHtml(1, { ...props, method: "<b>threshold</b>", model_version: null }, "UTC");
+    expect(html).toContain("&#60;b&#62;threshold");
+    expect(html).toContain("unknown");
+    const plain = detectionPopupHtml(1, { ...props, method: "threshold", model_version: null }, "UTC");
+    expect(plain).toContain("none (threshold on Δh)");
+  });
+});

@@ -1,0 +1,74 @@
+// How detections look on the map and what their popup says.
+
+import { escapeHtml, formatArea, formatDateTime, formatMetres, formatVolume } from "./format";
+import type { DetectionProperties } from "./types";
+
+/** Yellow (unsure) to dark red (sure); more opaque the surer the detection. */
+export function scoreColor(score: number): string {
+  const s = Math.max(0, Math.min(1, score));
+  const stops: Array<[number, [number, number, number]]> = [
+    [0, [255, 237, 111]],
+    [0.5, [253, 141, 60]],
+    [1, [165, 0, 38]],
+  ];
+  const i = s <= 0.5 ? 0 : 1;
+  const [s0, c0] = stops[i];
+  const [s1, c1] = stops[i + 1];
+  const t = (s - s0) / (s1 - s0);
+  const rgb = c0.map((c, k) => Math.round(c + (c1[k] - c) * t));
+  return `rgb(${rgb.join(", ")})`;
+}
+
+export interface PathStyle {
+  color: string;
+  weight: number;
+  fillColor: string;
+  fillOpacity: number;
+  opacity: number;
+}
+
+export function detectionStyle(score: number, selected = false): PathStyle {
+  const color = scoreColor(score);
+  return {
+    color: selected ? "#00e5ff" : color,
+    weight: selected ? 4 : 2.5,
+    fillColor: color,
+    // Light enough for the Δh colours beneath to show through.
+    fillOpacity: 0.08 + 0.22 * Math.max(0, Math.min(1, score)),
+    opacity: 1,
+  };
+}
+
+export function cellStyle(): PathStyle {
+  return { color: "#7b2cbf", weight: 1, fillColor: "#7b2cbf", fillOpacity: 0.12, opacity: 0.8 };
+}
+
+const VERDICT_WORDS = { confirmed: "confirmed landslide", false_alarm: "false alarm" } as const;
+
+/** The popup's table: every number with its unit; text escaped. */
+export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone: string): string {
+  const rows: Array<[string, string]> = [
+    ["Area", formatArea(p.area_m2)],
+    ["Volume lost", formatVolume(p.volume_loss_m3)],
+    ["Volume gained", formatVolume(p.volume_gain_m3)],
+    ["Max |Δh|", formatMetres(p.max_abs_dh_m)],
+    ["Score", p.score.toFixed(2)],
+    ["Method", p.method],
+    ["Model version", p.model_version ?? (p.method === "threshold" ? "none (threshold on Δh)" : "unknown")],
+  ];
+  const latest = p.feedback?.latest;
+  const verdict = latest
+    ? `${VERDICT_WORDS[latest.verdict]} by ${latest.author}, ${formatDateTime(latest.at, timeZone)}`
+    : "no verdict yet";
+  return `
+    <div class="popup" data-detection-id="${id}">
+      <h3>Detection ${id}</h3>
+      <table>${rows.map(([k, v]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(v)}</td></tr>`).join("")}</table>
+      <p class="verdict">Verdict: <span data-role="verdict">${escapeHtml(verdict)}</span>
+        (${p.feedback?.confirmed ?? 0} confirmed, ${p.feedback?.false_alarm ?? 0} false alarm)</p>
+      <div class="verdict-buttons">
+        <button type="button" data-verdict="confirmed">Confirm landslide</button>
+        <button type="button" data-verdict="false_alarm">False alarm</button>
+      </div>
+    </div>`;
+}

@@ -1,0 +1,39 @@
+// Legends in metres for the colour layers, and the score ramp of detections.
+
+import { cssGradient, legendPosition, ticks } from "../colormap";
+import { scoreColor } from "../detections";
+import { formatMetres } from "../format";
+
+function scale(title: string, gradient: string, range: [number, number], id: string): HTMLElement {
+  const [low, high] = range;
+  const box = document.createElement("figure");
+  box.className = "legend-scale";
+  box.dataset.legend = id;
+  box.innerHTML = `<figcaption>${title}</figcaption><div class="bar" style="background:${gradient}"></div><div class="ticks"></div>`;
+  const tickBox = box.querySelector(".ticks") as HTMLElement;
+  for (const value of ticks(low, high)) {
+    const tick = document.createElement("span");
+    tick.style.left = `${legendPosition(value, low, high) * 100}%`;
+    tick.textContent = formatMetres(value, Math.abs(high - low) < 10 ? 1 : 0);
+    tickBox.append(tick);
+  }
+  return box;
+}
+
+export function elevationLegend(range: [number, number]): HTMLElement {
+  return scale("Elevation (m above the DSM's datum)", cssGradient("terrain"), range, "elevation");
+}
+
+export function differenceLegend(range: [number, number]): HTMLElement {
+  const box = scale("Δh = post − pre (m): blue lost, red gained", cssGradient("rdbu_r"), range, "dh");
+  return box;
+}
+
+export function scoreLegend(): HTMLElement {
+  const box = document.createElement("figure");
+  box.className = "legend-scale";
+  box.dataset.legend = "score";
+  const stops = [0, 0.25, 0.5, 0.75, 1].map((s) => scoreColor(s)).join(", ");
+  box.innerHTML = `<figcaption>Detection score (0 unsure – 1 sure)</figcaption><div class="bar" style="background:linear-gradient(to right, ${stops})"></div><div class="ticks"><span style="left:0%">0</span><span style="left:50%">0.5</span><span style="left:100%">1</span></div>`;
+  return box;
+}

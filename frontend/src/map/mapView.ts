@@ -1,0 +1,337 @@
+// The site's map: pre and post DSMs (elevation colours over hillshade), Δh, detections and
+// their patch cells, survey footprints and flight trajectories; swipe, opacity, legends.
+// Leaflet draws vectors on a Canvas 2D renderer; there is no basemap unless one is set.
+
+import L from "leaflet";
+import "leaflet/dist/leaflet.css";
+import { authHeaders, getJson, putJson } from "../api";
+import { symmetricRange, unionRange } from "../colormap";
+import { cellStyle, detectionPopupHtml, detectionStyle } from "../detections";
+import { escapeHtml, formatDate } from "../format";
+import type { Comparison, DetectionFeature, MapConfig, Product, Site, Survey, TileJson, Verdict } from "../types";
+import { differenceLegend, elevationLegend, scoreLegend } from "./legend";
+import { swipeClips } from "./swipe";
+import { type Owner, productTileLayer, tileJson, tileTemplate } from "./tiles";
+
+type LayerKey = "pre" | "post" | "dh" | "detections" | "cells" | "footprints" | "trajectories";
+
+const PANES: Record<string, number> = {
+  pre: 250,
+  post: 260,
+  dh: 270,
+  footprints: 410,
+  trajectories: 415,
+  cells: 420,
+  detections: 430,
+};
+
+const LABELS: Record<LayerKey, string> = {
+  pre: "Pre DSM",
+  post: "Post DSM",
+  dh: "Δh (post − pre)",
+  detections: "Detections",
+  cells: "Patch cells",
+  footprints: "Survey footprints",
+  trajectories: "Flight trajectories",
+};
+
+const RASTERS: LayerKey[] = ["pre", "post", "dh"];
+
+export interface ShownPair {
+  pre: Survey | null;
+  post: Survey | null;
+  comparison: Comparison | null;
+}
+
+export class MapView {
+  readonly map: L.Map;
+  private readonly groups = new Map<LayerKey, L.LayerGroup>();
+  private readonly visible = new Map<LayerKey, boolean>();
+  private readonly opacity = new Map<LayerKey, number>([
+    ["pre", 1],
+    ["post", 1],
+    ["dh", 0.85],
+  ]);
+  private readonly legendBox: HTMLElement;
+  private readonly controlsBox: HTMLElement;
+  private readonly swipeBox: HTMLElement;
+  private swipeOn = false;
+  private swipeFraction = 0.5;
+  private siteBounds: L.LatLngBounds | null = null;
+  private detectionLayers = new Map<number, L.Path>();
+  private site: Site | null = null;
+  private generation = 0;
+
+  constructor(container: HTMLElement, config: MapConfig) {
+    this.map = L.map(container, {
+      preferCanvas: true,
+      zoomSnap: 1, // whole zoom levels: scaled tiles would show seams between them
+      maxZoom: 24,
+      attributionControl: true,
+      keyboard: true,
+    });
+    this.map.attributionControl.setPrefix(false);
+    for (const [pane, z] of Object.entries(PANES)) this.map.createPane(pane).style.zIndex = String(z);
+    if (config.basemap_url) {
+      L.tileLayer(config.basemap_url, { attribution: escapeHtml(config.basemap_attribution), maxZoom: 19 }).addTo(this.map);
+    } else {
+      this.map.attributionControl.addAttribution("No basemap (works offline)");
+    }
+    for (const key of Object.keys(LABELS) as LayerKey[]) {
+      this.groups.set(key, L.layerGroup().addTo(this.map));
+      this.visible.set(key, true);
+    }
+    this.map.setView([0, 0], 2);
+    this.controlsBox = this.addControl("topright", "map-controls");
+    this.legendBox = this.addControl("bottomleft", "map-legends");
+    this.swipeBox = this.buildSwipe(container);
+    this.renderControls();
+    this.map.on("move zoom resize viewreset", () => this.applySwipe());
+  }
+
+  private addControl(position: L.ControlPosition, className: string): HTMLElement {
+    const box = L.DomUtil.create("div", `leaflet-bar ${className}`);
+    L.DomEvent.disableClickPropagation(box);
+    L.DomEvent.disableScrollPropagation(box);
+    const control = new L.Control({ position });
+    control.onAdd = () => box;
+    control.addTo(this.map);
+    return box;
+  }
+
+  private buildSwipe(container: HTMLElement): HTMLElement {
+    const box = document.createElement("div");
+    box.className = "swipe";
+    box.hidden = true;
+    box.innerHTML = `<div class="swipe-line" aria-hidden="true"></div>
+      <label class="swipe-input"><span class="visually-hidden">Swipe position: pre DSM to the left, post DSM to the right</span>
+      <input type="range" min="0" max="100" step="1" value="50" id="swipe-range"></label>
+      <span class="swipe-tag left" aria-hidden="true">pre</span><span class="swipe-tag right" aria-hidden="true">post</span>`;
+    const input = box.querySelector("input") as HTMLInputElement;
+    input.addEventListener("input", () => {
+      this.swipeFraction = Number(input.value) / 100;
+      this.applySwipe();
+    });
+    L.DomEvent.disableClickPropagation(box);
+    container.append(box);
+    return box;
+  }
+
+  private applySwipe(): void {
+    const pre = this.map.getPane("pre") as HTMLElement;
+    const post = this.map.getPane("post") as HTMLElement;
+    const line = this.swipeBox.querySelector(".swipe-line") as HTMLElement;
+    if (!this.swipeOn) {
+      pre.style.clip = "";
+      post.style.clip = "";
+      return;
+    }
+    const size = this.map.getSize();
+    const topLeft = this.map.containerPointToLayerPoint([0, 0]);
+    const bottomRight = this.map.containerPointToLayerPoint(size);
+    const clips = swipeClips(topLeft, bottomRight, this.swipeFraction);
+    pre.style.clip = clips.left;
+    post.style.clip = clips.right;
+    line.style.left = `${this.swipeFraction * 100}%`;
+  }
+
+  setSwipe(on: boolean): void {
+    this.swipeOn = on;
+    this.swipeBox.hidden = !on;
+    if (on) {
+      this.setVisible("pre", true);
+      this.setVisible("post", true);
+    }
+    this.applySwipe();
+    this.renderControls();
+  }
+
+  private setVisible(key: LayerKey, on: boolean): void {
+    this.visible.set(key, on);
+    const group = this.groups.get(key) as L.LayerGroup;
+    if (on && !this.map.hasLayer(group)) group.addTo(this.map);
+    if (!on && this.map.hasLayer(group)) group.remove();
+  }
+
+  private setOpacity(key: LayerKey, value: number): void {
+    this.opacity.set(key, value);
+    (this.map.getPane(key) as HTMLElement).style.opacity = String(value);
+  }
+
+  private renderControls(): void {
+    const rows = (Object.keys(LABELS) as LayerKey[])
+      .map((key) => {
+        const checked = this.visible.get(key) ? "checked" : "";
+        const slider = RASTERS.includes(key)
+          ? `<label class="opacity"><span class="visually-hidden">${escapeHtml(LABELS[key])} opacity</span>
+             <input type="range" min="0" max="100" value="${Math.round((this.opacity.get(key) ?? 1) * 100)}" data-opacity="${key}" aria-label="${escapeHtml(LABELS[key])} opacity (%)"></label>`
+          : "";
+        return `<div class="layer-row"><label><input type="checkbox" data-layer="${key}" ${checked}> ${escapeHtml(LABELS[key])}</label>${slider}</div>`;
+      })
+      .join("");
+    // Open on a laptop; folded on a narrow (tablet portrait) screen until asked for.
+    const open = (this.controlsBox.querySelector("details") as HTMLDetailsElement | null)?.open ?? window.innerWidth > 900;
+    this.controlsBox.innerHTML = `<details ${open ? "open" : ""}><summary>Layers</summary>${rows}
+      <div class="layer-row"><label><input type="checkbox" id="swipe-toggle" ${this.swipeOn ? "checked" : ""}> Swipe pre | post</label></div>
+      <button type="button" id="zoom-site">Zoom to site</button></details>`;
+    this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-layer]").forEach((input) =>
+      input.addEventListener("change", () => this.setVisible(input.dataset.layer as LayerKey, input.checked)),
+    );
+    this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-opacity]").forEach((input) =>
+      input.addEventListener("input", () => this.setOpacity(input.dataset.opacity as LayerKey, Number(input.value) / 100)),
+    );
+    (this.controlsBox.querySelector("#swipe-toggle") as HTMLInputElement).addEventListener("change", (e) =>
+      this.setSwipe((e.target as HTMLInputElement).checked),
+    );
+    (this.controlsBox.querySelector("#zoom-site") as HTMLButtonElement).addEventListener("click", () => this.zoomToSite());
+  }
+
+  zoomToSite(): void {
+    if (this.siteBounds?.isValid()) this.map.fitBounds(this.siteBounds, { padding: [20, 20] });
+  }
+
+  /** Footprints and trajectories of every survey of the site. */
+  async showSurveys(site: Site, surveys: Survey[]): Promise<void> {
+    this.site = site;
+    const footprints = this.groups.get("footprints") as L.LayerGroup;
+    const trajectories = this.groups.get("trajectories") as L.LayerGroup;
+    footprints.clearLayers();
+    trajectories.clearLayers();
+    const bounds = L.latLngBounds([]);
+    if (site.area_of_interest) bounds.extend(L.geoJSON(site.area_of_interest).getBounds());
+    for (const survey of surveys) {
+      if (!survey.footprint) continue;
+      const layer = L.geoJSON(survey.footprint, {
+        pane: "footprints",
+        style: { color: "#1f2937", weight: 1.5, dashArray: "6 4", fill: false },
+      });
+      layer.bindTooltip(`${escapeHtml(survey.name)} (${formatDate(survey.captured_at, site.timezone)})`);
+      footprints.addLayer(layer);
+      bounds.extend(layer.getBounds());
+    }
+    for (const survey of surveys.filter((s) => s.kind !== "dsm" && s.status === "ready")) {
+      const products = await getJson<Product[]>(`sites/${site.id}/surveys/${survey.id}/products`);
+      const trajectory = products.find((p) => p.kind === "trajectory");
+      if (!trajectory) continue;
+      const geojson = await fetch(trajectory.download_url, { headers: authHeaders() }).then((r) => r.json());
+      const line = L.geoJSON(geojson, { pane: "trajectories", style: { color: "#0ea5e9", weight: 2 } });
+      line.bindTooltip(`Flight of ${escapeHtml(survey.name)}`);
+      trajectories.addLayer(line);
+      bounds.extend(line.getBounds());
+    }
+    if (bounds.isValid()) {
+      const first = this.siteBounds === null;
+      this.siteBounds = bounds;
+      if (first) this.zoomToSite();
+    }
+  }
+
+  /** The pre and post DSMs, and a comparison's Δh and detections when there is one. */
+  async showPair(pair: ShownPair): Promise<DetectionFeature[]> {
+    const site = this.site as Site;
+    const generation = ++this.generation;
+    for (const key of ["pre", "post", "dh", "detections", "cells"] as LayerKey[]) this.groups.get(key)?.clearLayers();
+    this.detectionLayers.clear();
+    this.legendBox.innerHTML = "";
+    const surveyOwner = (s: Survey | null): Owner | null => (s && s.status === "ready" ? { kind: "surveys", id: s.id } : null);
+    const owners = { pre: surveyOwner(pair.pre), post: surveyOwner(pair.post) };
+    const infos: Record<"pre" | "post", TileJson | null> = { pre: null, post: null };
+    for (const side of ["pre", "post"] as const) {
+      const owner = owners[side];
+      if (owner) infos[side] = await tileJson(site.id, owner, "dsm").catch(() => null);
+    }
+    if (generation !== this.generation) return [];
+    const elevation = unionRange([infos.pre?.rescale, infos.post?.rescale]);
+    for (const side of ["pre", "post"] as const) {
+      const owner = owners[side];
+      const info = infos[side];
+      if (!owner || !info) continue;
+      const group = this.groups.get(side) as L.LayerGroup;
+      group.addLayer(productTileLayer(tileTemplate(site.id, owner, "hillshade"), info, side));
+      const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", elevation ?? undefined), info, side);
+      colours.setOpacity(0.6); // the hillshade shows through the elevation colours
+      group.addLayer(colours);
+    }
+    if (elevation) this.legendBox.append(elevationLegend(elevation));
+    let features: DetectionFeature[] = [];
+    const comparison = pair.comparison;
+    if (comparison && comparison.status === "succeeded") {
+      const owner: Owner = { kind: "comparisons", id: comparison.id };
+      const info = await tileJson(site.id, owner, "dh").catch(() => null);
+      if (info && generation === this.generation) {
+        const range = symmetricRange(info.rescale);
+        (this.groups.get("dh") as L.LayerGroup).addLayer(
+          productTileLayer(tileTemplate(site.id, owner, "dh", range), info, "dh"),
+        );
+        this.legendBox.append(differenceLegend(range));
+      }
+      features = await this.showDetections(site, comparison);
+      this.legendBox.append(scoreLegend());
+    }
+    for (const key of RASTERS) this.setOpacity(key, this.opacity.get(key) ?? 1);
+    this.applySwipe();
+    return features;
+  }
+
+  private async showDetections(site: Site, comparison: Comparison): Promise<DetectionFeature[]> {
+    const base = `sites/${site.id}/comparisons/${comparison.id}`;
+    const [collection, cells] = await Promise.all([
+      getJson<GeoJSON.FeatureCollection>(`${base}/detections`),
+      getJson<GeoJSON.FeatureCollection>(`${base}/cells`),
+    ]);
+    const features = collection.features as DetectionFeature[];
+    const cellRenderer = L.canvas({ pane: "cells" });
+    (this.groups.get("cells") as L.LayerGroup).addLayer(
+      L.geoJSON(cells, { style: () => cellStyle(), renderer: cellRenderer } as L.GeoJSONOptions),
+    );
+    const renderer = L.canvas({ pane: "detections", tolerance: 3 });
+    const group = this.groups.get("detections") as L.LayerGroup;
+    for (const feature of features) {
+      const layer = L.geoJSON(feature, {
+        style: () => detectionStyle(feature.properties.score),
+        renderer,
+      } as L.GeoJSONOptions);
+      layer.eachLayer((path) => {
+        const polygon = path as L.Path;
+        polygon.bindPopup(() => detectionPopupHtml(feature.id, feature.properties, site.timezone), { maxWidth: 320 });
+        polygon.on("popupopen", (event: L.PopupEvent) => this.wireVerdicts(event.popup, site, comparison, feature));
+        this.detectionLayers.set(feature.id, polygon);
+      });
+      group.addLayer(layer);
+    }
+    return features;
+  }
+
+  private wireVerdicts(popup: L.Popup, site: Site, comparison: Comparison, feature: DetectionFeature): void {
+    const element = popup.getElement();
+    if (!element) return;
+    (element.querySelector("button[data-verdict]") as HTMLButtonElement | null)?.focus();
+    element.querySelectorAll<HTMLButtonElement>("button[data-verdict]").forEach((button) =>
+      button.addEventListener("click", async () => {
+        const verdict = button.dataset.verdict as Verdict;
+        const url = `sites/${site.id}/comparisons/${comparison.id}/detections/${feature.id}/feedback`;
+        const saved = await putJson<{ author: string; updated_at: string }>(url, { verdict });
+        const summary = feature.properties.feedback;
+        summary.latest = { verdict, author: saved.author, at: saved.updated_at };
+        const all = await getJson<Array<{ verdict: Verdict }>>(url);
+        summary.confirmed = all.filter((f) => f.verdict === "confirmed").length;
+        summary.false_alarm = all.filter((f) => f.verdict === "false_alarm").length;
+        popup.setContent(detectionPopupHtml(feature.id, feature.properties, site.timezone));
+        this.wireVerdicts(popup, site, comparison, feature);
+      }),
+    );
+  }
+
+  /** Zoom to a detection and open its popup (the keyboard's way to the polygon). */
+  openDetection(id: number): void {
+    const layer = this.detectionLayers.get(id) as (L.Path & { getBounds(): L.LatLngBounds }) | undefined;
+    if (!layer) return;
+    this.setVisible("detections", true);
+    this.map.fitBounds(layer.getBounds(), { padding: [60, 60], maxZoom: 23 });
+    layer.openPopup(layer.getBounds().getCenter());
+  }
+
+  invalidateSize(): void {
+    this.map.invalidateSize();
+  }
+}

@@ -1,0 +1,57 @@
+// The list of sites, and a form for a new one.
+
+import { ApiError, getJson, postJson } from "../api";
+import { escapeHtml, formatDate } from "../format";
+import type { Site } from "../types";
+import { header, wireSignOut } from "./header";
+
+function timeZones(): string[] {
+  const supported = (Intl as unknown as { supportedValuesOf?: (k: string) => string[] }).supportedValuesOf;
+  return supported ? supported("timeZone") : ["UTC"];
+}
+
+export async function renderSites(app: HTMLElement): Promise<void> {
+  app.innerHTML = `${header("<span>Sites</span>")}
+    <main id="main" class="sites">
+      <h1>Sites</h1>
+      <ul class="site-list" id="site-list" aria-live="polite"><li>Loading…</li></ul>
+      <form id="new-site" class="card">
+        <h2>New site</h2>
+        <label for="site-name">Name</label><input id="site-name" required maxlength="200">
+        <label for="site-description">Description</label><input id="site-description">
+        <label for="site-timezone">Time zone (times of the site are shown in it)</label>
+        <input id="site-timezone" list="timezones" required value="${escapeHtml(Intl.DateTimeFormat().resolvedOptions().timeZone || "UTC")}">
+        <datalist id="timezones">${timeZones().map((z) => `<option value="${escapeHtml(z)}">`).join("")}</datalist>
+        <button type="submit">Create site</button>
+        <p class="error" role="alert" id="site-error"></p>
+      </form>
+    </main>`;
+  wireSignOut(app);
+  // The form works at once; the list arrives when it arrives.
+  const form = app.querySelector("#new-site") as HTMLFormElement;
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const value = (id: string) => (app.querySelector(`#${id}`) as HTMLInputElement).value.trim();
+    try {
+      const site = await postJson<Site>("sites", {
+        name: value("site-name"),
+        description: value("site-description"),
+        timezone: value("site-timezone"),
+      });
+      location.hash = `#/sites/${site.id}`;
+    } catch (e) {
+      (app.querySelector("#site-error") as HTMLElement).textContent =
+        e instanceof ApiError ? e.message : "The server cannot be reached.";
+    }
+  });
+  const list = app.querySelector("#site-list") as HTMLElement;
+  const sites = await getJson<Site[]>("sites");
+  list.innerHTML = sites.length
+    ? sites
+        .map(
+          (s) => `<li><a href="#/sites/${s.id}">${escapeHtml(s.name)}</a>
+            <span class="muted">${escapeHtml(s.description)} · ${escapeHtml(s.timezone)} · since ${formatDate(s.created_at, s.timezone)}</span></li>`,
+        )
+        .join("")
+    : "<li>No site yet: create one below.</li>";
+}

@@ -1,0 +1,144 @@
+// Shapes of the API's answers (backend/api/schemas.py, schemas_map.py).
+
+export interface Site {
+  id: number;
+  name: string;
+  description: string;
+  area_of_interest: GeoJSON.Geometry | null;
+  timezone: string;
+  created_at: string;
+}
+
+export interface StoredFile {
+  size_bytes: number;
+  sha256: string;
+  media_type: string;
+  original_name: string | null;
+}
+
+export interface Survey {
+  id: number;
+  site_id: number;
+  name: string;
+  captured_at: string;
+  kind: "dsm" | "video" | "images";
+  status: "receiving" | "uploaded" | "processing" | "ready" | "failed";
+  crs: string | null;
+  footprint: GeoJSON.Geometry | null;
+  resolution_m: number | null;
+  source_file: StoredFile | null;
+  error?: string | null;
+  created_at: string;
+}
+
+export interface Product {
+  id: number;
+  kind: string;
+  survey_id: number | null;
+  comparison_id: number | null;
+  crs: string | null;
+  file: StoredFile;
+  download_url: string;
+  created_at: string;
+}
+
+export type JobState = "queued" | "running" | "succeeded" | "failed";
+
+export interface StageRun {
+  stage: string;
+  state: "pending" | "running" | "succeeded" | "failed";
+  progress: number;
+  attempts: number;
+  started_at: string | null;
+  finished_at: string | null;
+  error: string | null;
+  result: Record<string, unknown> | null;
+}
+
+export interface Job {
+  id: number;
+  site_id: number;
+  kind: string;
+  comparison_id: number | null;
+  survey_id: number | null;
+  state: JobState;
+  progress: number;
+  error: string | null;
+  created_at: string;
+  started_at: string | null;
+  finished_at: string | null;
+  stages: StageRun[];
+}
+
+export interface Comparison {
+  id: number;
+  site_id: number;
+  pre_survey_id: number;
+  post_survey_id: number;
+  method: string;
+  parameters: Record<string, unknown>;
+  status: JobState;
+  summary: {
+    detections?: number;
+    total_area_m2?: number;
+    total_volume_loss_m3?: number;
+    total_volume_gain_m3?: number;
+  } | null;
+  error: string | null;
+  created_at: string;
+  finished_at: string | null;
+  job_id: number | null;
+}
+
+export interface FeedbackSummary {
+  confirmed: number;
+  false_alarm: number;
+  latest: { verdict: Verdict; author: string; at: string } | null;
+}
+
+export type Verdict = "confirmed" | "false_alarm";
+
+export interface DetectionProperties {
+  comparison_id: number;
+  area_m2: number;
+  volume_loss_m3: number;
+  volume_gain_m3: number;
+  max_abs_dh_m: number;
+  score: number;
+  method: string;
+  model_version: string | null;
+  feedback: FeedbackSummary;
+}
+
+export type DetectionFeature = GeoJSON.Feature<GeoJSON.Polygon | GeoJSON.MultiPolygon, DetectionProperties> & {
+  id: number;
+};
+
+export interface TileJson {
+  tiles: string[];
+  bounds: [number, number, number, number];
+  minzoom: number;
+  maxzoom: number;
+  colormap: string | null;
+  rescale: [number, number] | null;
+  unit: string;
+}
+
+export interface MapConfig {
+  basemap_url: string | null;
+  basemap_attribution: string;
+  upload_chunk_bytes: number;
+  max_upload_bytes: number;
+  version: string;
+}
+
+export interface WhoAmI {
+  kind: "user" | "token";
+  name: string;
+  expires_at: string | null;
+}
+
+export interface ComparisonCreatedOut {
+  comparison: Comparison;
+  job: Job;
+}

@@ -1,0 +1,258 @@
+"""The map end to end: sign in, upload a DSM pair through the page, watch the comparison's
+job finish live, see the detections over the DSMs, swipe, open a detection and judge it;
+uploads that are cut or whose page is reloaded resume where they stopped."""
+
+import re
+from pathlib import Path
+
+from playwright.sync_api import Page, Request, Route, expect
+
+from tests.e2e.conftest import USER, App, shot
+from worker.simulator.dsm_pair import DsmPairPaths
+
+JOB_TIMEOUT_MS = 180_000
+
+
+def sign_in(page: Page, app: App) -> None:
+    page.goto(app.url + "/")
+    expect(page.get_by_role("heading", name="Sign in")).to_be_visible()
+    page.get_by_label("User name").fill(USER["username"])
+    page.get_by_label("Password").fill(USER["password"])
+    page.get_by_role("button", name="Sign in").click()
+    expect(page.get_by_role("heading", name="Sites")).to_be_visible()
+
+
+def create_site(page: Page, name: str, timezone: str = "Europe/Rome") -> None:
+    page.get_by_label("Name").fill(name)
+    page.get_by_label("Time zone").fill(timezone)
+    page.get_by_role("button", name="Create site").click()
+    expect(page.get_by_role("heading", name=name, level=1)).to_be_visible()
+
+
+def choose_dsm(page: Page, path: Path, name: str, flown_at: str) -> None:
+    page.get_by_label("DSM (.tif, with its CRS)").set_input_files(str(path))
+    page.get_by_label("Survey name").fill(name)
+    page.get_by_label(re.compile(r"^Flown at")).fill(flown_at)
+
+
+def upload_dsm(page: Page, path: Path, name: str, flown_at: str) -> None:
+    choose_dsm(page, path, name, flown_at)
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-status")).to_contain_text("ready to compare", timeout=60_000)
+    expect(page.locator(".survey-list")).to_contain_text(name)
+
+
+def test_sign_in_upload_compare_and_read_the_map(
+    page: Page, app_server: App, dsm_pair: DsmPairPaths
+) -> None:
+    sign_in(page, app_server)
+    create_site(page, "East flank")
+    # Plain words before any byte is sent.
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-errors")).to_contain_text("Choose the DSM file.")
+    upload_dsm(page, dsm_pair.pre, "June flight", "2026-06-01T10:00")
+    upload_dsm(page, dsm_pair.post, "July flight", "2026-07-01T10:00")
+    # Times in the site's time zone (Europe/Rome: UTC+2 in summer).
+    expect(page.locator(".survey-list")).to_contain_text("1 Jun 2026, 10:00 CEST")
+    shot(page, "site-two-surveys")
+
+    page.get_by_label("Before (pre)").select_option(label="June flight · 1 Jun 2026")
+    page.get_by_label("After (post)").select_option(label="July flight · 1 Jul 2026")
+    page.get_by_role("button", name="Compare").click()
+    job = page.locator(".job").first
+    expect(job).to_contain_text("coregister")
+    shot(page, "job-running")
+    expect(job).to_have_class(re.compile("job-succeeded"), timeout=JOB_TIMEOUT_MS)
+    expect(job.locator(".stage-succeeded")).to_have_count(4)
+
+    # The map: DSM tiles, Δh, legends in metres, detections drawn on the canvas.
+    detection = page.get_by_role("button", name="Detection 1")
+    expect(detection).to_be_visible(timeout=30_000)
+    for pane in ("pre", "post", "dh"):
+        expect(page.locator(f".leaflet-{pane}-pane img.leaflet-tile-loaded").first).to_be_attached(
+            timeout=30_000
+        )
+    expect(page.locator("[data-legend=elevation]")).to_contain_text(" m")
+    expect(page.locator("[data-legend=dh]")).to_contain_text("0 m")
+    assert drawn_pixels(page, "detections") > 100
+    page.get_by_role("button", name="Zoom to site").click()
+    page.wait_for_timeout(500)
+    shot(page, "map-detections", "map-detections")
+
+    # A detection's popup: area, volumes, max |Δh|, method, model version; then a verdict.
+    detection.click()
+    popup = page.locator(".leaflet-popup .popup")
+    expect(popup).to_contain_text("m²")
+    for text in ("Volume lost", "m³", "Max |Δh|", "Method", "threshold", "Model version"):
+        expect(popup).to_contain_text(text)
+    shot(page, "detection-popup", "map-popup")
+    popup.get_by_role("button", name="Confirm landslide").click()
+    expect(popup.locator("[data-role=verdict]")).to_contain_text("confirmed landslide by maria")
+    page.locator(".leaflet-popup-close-button").click()
+    expect(popup).to_have_count(0)
+
+    # One layer at a time for the docs: pre, post, Δh.
+    zoom_to_site(page)
+    layers = {"pre": "Pre DSM", "post": "Post DSM", "dh": "Δh (post − pre)"}
+    for shown, _label in layers.items():
+        for key, label in layers.items():
+            page.get_by_label(label, exact=True).set_checked(key == shown)
+        page.wait_for_timeout(800)
+        shot(page, f"map-{shown}", f"map-{shown}")
+    for label in layers.values():
+        page.get_by_label(label, exact=True).set_checked(True)
+
+    # Swipe: pre on the left, post on the right, moved with the keyboard.
+    page.get_by_label("Δh (post − pre)", exact=True).set_checked(False)
+    page.get_by_label("Swipe pre | post").check()
+    swipe = page.get_by_label(re.compile("Swipe position"))
+    expect(swipe).to_be_visible()
+    before = clip_right_edge(page, "pre")
+    swipe.focus()
+    for _ in range(20):
+        page.keyboard.press("ArrowLeft")
+    after = clip_right_edge(page, "pre")
+    assert after < before, (before, after)
+    assert page.locator(".leaflet-post-pane").evaluate("e => e.style.clip").startswith("rect(")
+    for _ in range(22):  # the divider across the landslide: its scar on the post side
+        page.keyboard.press("ArrowRight")
+    assert clip_right_edge(page, "pre") > after
+    shot(page, "map-swipe", "map-swipe")
+
+    # Opacity of a layer.
+    page.get_by_label("Post DSM opacity (%)").fill("40")
+    assert page.locator(".leaflet-post-pane").evaluate("e => e.style.opacity") == "0.4"
+
+
+def test_a_cut_connection_and_a_reload_resume_the_upload(
+    page: Page, app_server: App, dsm_pair: DsmPairPaths
+) -> None:
+    sign_in(page, app_server)
+    create_site(page, "West gully", "Asia/Kathmandu")
+    patches: list[int] = []
+    created: list[str] = []
+
+    def log(request: Request) -> None:
+        if "/api/v1/uploads" in request.url and request.method == "PATCH":
+            patches.append(int(request.headers["upload-offset"]))
+        if request.url.endswith("/api/v1/uploads") and request.method == "POST":
+            created.append(request.url)
+
+    page.on("request", log)
+
+    # 1. The network drops during the third request: tus-js-client asks the server where it
+    # stopped and goes on.
+    cut = {"done": False}
+
+    def drop_third(route: Route) -> None:
+        if route.request.method == "PATCH" and len(patches) == 3 and not cut["done"]:
+            cut["done"] = True
+            route.abort("internetdisconnected")
+        else:
+            route.continue_()
+
+    page.route("**/api/v1/uploads/*", drop_third)
+    upload_dsm(page, dsm_pair.pre, "Before the monsoon", "2026-06-01T10:00")
+    assert cut["done"]
+    assert len(created) == 1
+    assert patches[3] == patches[2], "the cut request was sent again from the same offset"
+    page.unroute("**/api/v1/uploads/*")
+
+    # 2. The page is reloaded during the upload: choosing the same file again resumes it.
+    patches.clear()
+    created.clear()
+    hold = {"held": False}
+
+    def hold_third(route: Route) -> None:
+        if route.request.method == "PATCH" and len(patches) >= 3:
+            hold["held"] = True  # never answered: the page goes away under it
+            return
+        route.continue_()
+
+    page.route("**/api/v1/uploads/*", hold_third)
+    choose_dsm(page, dsm_pair.post, "After the monsoon", "2026-07-01T10:00")
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-status")).to_contain_text("Uploading")
+    page.wait_for_function("() => document.querySelector('#upload-progress').value > 0.2")
+    shot(page, "upload-interrupted")
+    page.unroute("**/api/v1/uploads/*")
+    sent_before_reload = max(patches)
+    page.reload()
+    expect(page.get_by_role("heading", name="West gully", level=1)).to_be_visible()
+    patches.clear()
+    choose_dsm(page, dsm_pair.post, "After the monsoon", "2026-07-01T10:00")
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-status")).to_contain_text("ready to compare", timeout=60_000)
+    assert len(created) == 1, "no new upload was created after the reload"
+    assert patches and patches[0] >= sent_before_reload > 0, (patches, sent_before_reload)
+    # Times in this site's zone (Asia/Kathmandu, UTC+5:45).
+    expect(page.locator(".survey-list")).to_contain_text("1 Jun 2026, 10:00")
+    shot(page, "upload-resumed")
+
+
+def test_refusals_in_plain_words_and_a_tablet_layout(
+    browser, app_server: App, dsm_pair: DsmPairPaths, tmp_path: Path
+) -> None:
+    context = browser.new_context(
+        viewport={"width": 820, "height": 1180}, locale="en-GB", has_touch=True
+    )
+    page = context.new_page()
+    try:
+        sign_in(page, app_server)
+        create_site(page, "North scarp")
+        # Before the upload: the name and the first bytes say it is no GeoTIFF.
+        notes = tmp_path / "notes.png"
+        notes.write_bytes(b"\x89PNG\r\n\x1a\n" + b"0" * 100)
+        choose_dsm(page, notes, "Wrong file", "2026-06-01T10:00")
+        page.get_by_role("button", name="Upload", exact=True).click()
+        expect(page.locator("#upload-errors")).to_contain_text("notes.png is not a GeoTIFF")
+        # After the upload: a .tif that is a TIFF but not a usable DSM, refused by the server.
+        fake = tmp_path / "fake.tif"
+        fake.write_bytes(b"II*\x00" + b"\x00" * 2000)
+        choose_dsm(page, fake, "Broken DSM", "2026-06-01T10:00")
+        page.get_by_role("button", name="Upload", exact=True).click()
+        expect(page.locator("#upload-errors")).to_contain_text("fake.tif", timeout=30_000)
+        expect(page.locator(".survey-list")).to_have_count(0)
+        # The map comes first on a tablet, and every control is reachable by keyboard.
+        map_box = page.locator("#map").bounding_box()
+        sidebar = page.locator(".sidebar").bounding_box()
+        assert map_box and sidebar and map_box["y"] < sidebar["y"]
+        assert map_box["width"] > 700
+        # The layer list is folded on a narrow screen; the keyboard unfolds it.
+        zoom = page.get_by_role("button", name="Zoom to site")
+        expect(zoom).to_be_hidden()
+        page.locator(".map-controls summary").focus()
+        page.keyboard.press("Enter")
+        expect(zoom).to_be_visible()
+        zoom.focus()
+        expect(zoom).to_be_focused()
+        page.keyboard.press("Enter")
+        page.screenshot(
+            path=str(Path(__file__).resolve().parents[2] / "test-artifacts" / "e2e" / "tablet.png")
+        )
+    finally:
+        context.close()
+
+
+def zoom_to_site(page: Page) -> None:
+    page.get_by_role("button", name="Zoom to site").click()
+    page.wait_for_timeout(400)
+
+
+def drawn_pixels(page: Page, pane: str) -> int:
+    """Non-transparent pixels on a pane's canvas: what Leaflet drew there."""
+    return page.locator(f".leaflet-{pane}-pane canvas").first.evaluate(
+        """canvas => {
+            const context = canvas.getContext('2d');
+            const data = context.getImageData(0, 0, canvas.width, canvas.height).data;
+            let n = 0;
+            for (let i = 3; i < data.length; i += 4) if (data[i] > 0) n++;
+            return n;
+        }"""
+    )
+
+
+def clip_right_edge(page: Page, pane: str) -> float:
+    clip = page.locator(f".leaflet-{pane}-pane").evaluate("e => e.style.clip")
+    numbers = [float(v) for v in re.findall(r"-?[\d.]+", clip)]
+    return numbers[1]

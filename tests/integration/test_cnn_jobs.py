@@ -1,0 +1,90 @@
+"""The cnn method and model training in a real Celery worker process (embedded default:
+SQLite database and broker, the way `make run` starts it)."""
+
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from backend.config import Settings
+from tests.api_helpers import upload_dsm
+from tests.cnn.conftest import mound_pair, write_separable_dataset
+from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
+
+pytestmark = pytest.mark.integration
+
+QUICK = {"coregister": {"subsample": 50_000}}  # the same result on these small pairs
+
+
+def test_cnn_finds_the_planted_slide_and_nothing_without_change(
+    tmp_path: Path, start_worker: Callable[..., SlidewatchProcess]
+) -> None:
+    settings = Settings(data_dir=tmp_path / "data")
+    client, auth = api_client(settings)
+    start_worker(settings)
+    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
+    jobs = {}
+    for label, slide, seed in (("slide", True, 3), ("still", False, 4)):
+        pre_path, post_path = mound_pair(slide, seed).write(tmp_path / label)
+        pre = upload_dsm(client, auth, site, pre_path, "2026-06-01T10:00:00Z")
+        post = upload_dsm(client, auth, site, post_path, "2026-07-01T10:00:00Z")
+        created = client.post(
+            f"/api/v1/sites/{site}/comparisons",
+            json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "parameters": QUICK},
+            headers=auth,
+        )
+        assert created.status_code == 202, created.text
+        assert created.json()["comparison"]["method"] == "cnn"  # the default
+        jobs[label] = created.json()["job"]
+    found = {}
+    for label, job in jobs.items():
+        job = wait_for_job(
+            client, auth, site, job["id"], lambda j: j["state"] in ("succeeded", "failed")
+        )
+        assert job["state"] == "succeeded", job
+        assert [s["stage"] for s in job["stages"]][-1] == "detect"
+        found[label] = client.get(
+            f"/api/v1/sites/{site}/comparisons/{job['comparison_id']}/detections", headers=auth
+        ).json()["features"]
+    assert len(found["slide"]) == 1 and found["still"] == []
+    props = found["slide"][0]["properties"]
+    assert props["method"] == "cnn" and props["model_version"].startswith("slidenet-default@")
+    assert 10 < props["area_m2"] < 40 and props["score"] >= 0.7
+
+
+def test_a_model_trained_in_the_worker_is_registered(
+    tmp_path: Path, start_worker: Callable[..., SlidewatchProcess]
+) -> None:
+    settings = Settings(data_dir=tmp_path / "data")
+    client, auth = api_client(settings)
+    dataset = settings.storage_dir / "datasets" / "pits"
+    dataset.mkdir(parents=True)
+    write_separable_dataset(dataset)
+    start_worker(settings, beat=False)
+    options = {
+        "epochs": 2, "steps_per_epoch": 6, "batch_size": 4, "tile_px": 64,
+        "validate_every": 2, "block_px": 120, "scales": [1], "clean_fraction": 0.0,
+    }  # fmt: skip
+    body = {"dataset": "datasets/pits/dataset.json", "name": "pits", "seed": 1, "options": options}
+    started = client.post("/api/v1/models/training", json=body, headers=auth)
+    assert started.status_code == 202, started.text
+    status_url = started.json()["status_url"]
+    deadline = time.monotonic() + 180
+    while (run := client.get(status_url, headers=auth).json())["state"] in ("queued", "running"):
+        assert time.monotonic() < deadline, run
+        time.sleep(0.5)
+    assert run["state"] == "succeeded", run
+    listed = {m["reference"]: m for m in client.get("/api/v1/models", headers=auth).json()}
+    model = listed[run["model"]]
+    assert model["name"] == "pits" and model["location"] == "storage"
+    assert not model["is_default"]  # the shipped model stays the default
+    assert model["card"]["training"]["seed"] == 1 and model["card"]["training"]["epochs_run"] == 2
+    assert model["card"]["training"]["exclude"]["region"] == "top"  # test region held out
+    assert model["card"]["metrics"]["validation"]["patches"] > 0
+    refused = client.post(
+        "/api/v1/models/training", json={**body, "dataset": "../../etc/passwd"}, headers=auth
+    )
+    assert refused.status_code == 422
+    shutil.rmtree(dataset)

@@ -1,0 +1,23 @@
+"""`slidewatch bench`: the benchmarks that take long, one subcommand each.
+
+    slidewatch bench detection --json OUT.json       (worker/commands/bench_detection.py)
+    slidewatch bench reconstruction --json OUT.json  (worker/commands/bench_reconstruction.py)
+
+Each prints its figures and writes them to --json.
+"""
+
+from __future__ import annotations
+
+import click
+
+from worker.commands.bench_detection import detection
+from worker.commands.bench_reconstruction import reconstruction
+
+
+@click.group("bench")
+def bench() -> None:
+    """Benchmarks that take long; each prints its figures and writes JSON."""
+
+
+bench.add_command(detection)
+bench.add_command(reconstruction)

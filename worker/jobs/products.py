@@ -1,0 +1,63 @@
+"""Record a job's output file as a downloadable product of a survey or a comparison."""
+
+from pathlib import Path
+
+import rasterio
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.db.models import Product, StoredFile
+from backend.storage import LocalStorage, file_digest
+
+COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
+
+
+def raster_crs(path: Path) -> str | None:
+    with rasterio.open(path) as src:
+        return src.crs.to_string() if src.crs else None
+
+
+def register_product(
+    session: Session,
+    storage: LocalStorage,
+    *,
+    site_id: int,
+    kind: str,
+    relative: str,
+    media_type: str,
+    survey_id: int | None = None,
+    comparison_id: int | None = None,
+) -> Product:
+    """Create or update the product `kind` of its owner; idempotent (a rerun stores again)."""
+    path = storage.absolute(relative)
+    size, sha256 = file_digest(path)
+    stored = session.scalar(select(StoredFile).where(StoredFile.path == relative))
+    if stored is None:
+        stored = StoredFile(path=relative, size_bytes=size, sha256=sha256, media_type=media_type)
+        session.add(stored)
+        session.flush()
+    else:
+        stored.size_bytes, stored.sha256 = size, sha256
+    if (survey_id is None) == (comparison_id is None):
+        raise ValueError("a product belongs to exactly one survey or one comparison")
+    owner = (
+        Product.survey_id == survey_id
+        if survey_id is not None
+        else Product.comparison_id == comparison_id
+    )
+    product = session.scalar(select(Product).where(owner, Product.kind == kind))
+    crs = raster_crs(path) if media_type.startswith("image/tiff") else None
+    if product is None:
+        product = Product(
+            site_id=site_id,
+            survey_id=survey_id,
+            comparison_id=comparison_id,
+            kind=kind,
+            file_id=stored.id,
+            crs=crs,
+        )
+        session.add(product)
+    else:
+        product.file_id, product.crs = stored.id, crs
+    session.flush()
+    return product

@@ -1,0 +1,132 @@
+"""The reconstruction job: a video + flight log, or an image set, to the survey's DSM.
+
+Stages are the library's (worker.pipeline.reconstruction): ingest -> frames ->
+reconstruct -> georeference -> dsm, each run over the survey's work folder in storage.
+When the dsm stage is stored, the survey gets its products: `dsm` (COG), `points` (PLY),
+`trajectory` (GeoJSON flight path in WGS84) and `report` (timings and residuals).
+"""
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from backend.config import get_settings
+from backend.db.models import Job, Survey, SurveyKind, SurveyStatus
+from backend.storage import LocalStorage
+from worker.jobs.products import COG_MEDIA_TYPE, register_product
+from worker.pipeline import reconstruction as pipeline
+from worker.pipeline.atomic import write_text_atomic
+from worker.pipeline.dsm_inspect import inspect_dsm
+from worker.pipeline.progress import ProgressFn
+from worker.pipeline.trajectory import read_trajectory_csv, trajectory_geojson
+
+IMAGES_DIR = "images"
+TRAJECTORY_GEOJSON = "trajectory.geojson"
+# Outputs of the dsm stage that become products: kind -> (file in the work folder, type).
+PRODUCTS: dict[str, tuple[str, str]] = {
+    "dsm": (pipeline.DSM, COG_MEDIA_TYPE),
+    "points": (pipeline.POINTS, "application/vnd.ply"),
+    "trajectory": (TRAJECTORY_GEOJSON, "application/geo+json"),
+    "report": (pipeline.REPORT, "application/json"),
+}
+
+
+def survey_folder(survey: Survey) -> str:
+    """Storage folder (relative) of a source survey's uploads and reconstruction."""
+    return f"surveys/{survey.site_id}/{survey.id}"
+
+
+def _link_images(images: dict[str, str], folder: Path) -> None:
+    """The image set as one folder, as the library reads it: links named as uploaded."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, target in images.items():
+        link = folder / name
+        if link.is_symlink() and os.readlink(link) == target:
+            continue
+        link.unlink(missing_ok=True)
+        link.symlink_to(target)
+
+
+class ReconstructionJob:
+    name = "reconstruction"
+    stages: tuple[str, ...] = tuple(pipeline.STAGES)
+
+    def __init__(self, storage: LocalStorage | None = None) -> None:
+        self._storage = storage
+
+    @property
+    def storage(self) -> LocalStorage:
+        return self._storage or LocalStorage(get_settings().storage_dir)
+
+    def _survey(self, session: Session, job: Job) -> Survey:
+        survey = session.get(Survey, job.survey_id)
+        if survey is None:
+            raise LookupError(f"survey {job.survey_id} of job {job.id} is gone")
+        return survey
+
+    def load_inputs(self, session: Session, job: Job) -> dict[str, Any]:
+        survey = self._survey(session, job)
+        paths = {f.name: str(self.storage.absolute(f.file.path)) for f in survey.files}
+        files = {f.role: paths[f.name] for f in survey.files if f.role != "image"}
+        images = {f.name: paths[f.name] for f in survey.files if f.role == "image"}
+        return {
+            "kind": survey.kind.value,
+            "video": files.get("video"),
+            "log": files.get("log"),
+            "images": images,
+            "work_dir": str(self.storage.absolute(f"{survey_folder(survey)}/reconstruction")),
+            "options": survey.options or {},
+        }
+
+    def run_stage(self, stage: str, inputs: dict[str, Any], progress: ProgressFn) -> dict[str, Any]:
+        work_dir = Path(inputs["work_dir"])
+        source = pipeline.ReconstructionInputs(video=inputs["video"], log=inputs["log"])
+        if inputs["kind"] == SurveyKind.images.value:
+            _link_images(inputs["images"], work_dir / IMAGES_DIR)
+            source = pipeline.ReconstructionInputs(images=str(work_dir / IMAGES_DIR))
+        options = pipeline.ReconstructionOptions.from_dict(inputs["options"])
+        result = pipeline.run_stage(stage, work_dir, options, source, progress)
+        if stage == "dsm":
+            trajectory = read_trajectory_csv(work_dir / pipeline.TRAJECTORY)
+            write_text_atomic(
+                work_dir / TRAJECTORY_GEOJSON, json.dumps(trajectory_geojson(trajectory))
+            )
+        return result
+
+    def store_stage_result(
+        self, session: Session, job: Job, stage: str, result: dict[str, Any]
+    ) -> None:
+        if stage != "dsm":
+            return
+        survey = self._survey(session, job)
+        folder = f"{survey_folder(survey)}/reconstruction"
+        for kind, (file_name, media_type) in PRODUCTS.items():
+            register_product(
+                session,
+                self.storage,
+                site_id=survey.site_id,
+                survey_id=survey.id,
+                kind=kind,
+                relative=f"{folder}/{file_name}",
+                media_type=media_type,
+            )
+        info = inspect_dsm(self.storage.absolute(f"{folder}/{pipeline.DSM}"), "the DSM")
+        survey.crs = info.crs
+        survey.footprint = info.footprint
+        survey.resolution_m = float(max(info.resolution_m))
+
+    def on_success(self, session: Session, job: Job) -> None:
+        survey = self._survey(session, job)
+        survey.status, survey.error = SurveyStatus.ready, None
+
+    def on_failure(self, session: Session, job: Job, reason: str) -> None:
+        survey = session.get(Survey, job.survey_id)
+        if survey is not None:
+            survey.status, survey.error = SurveyStatus.failed, reason
+
+    def on_retry(self, session: Session, job: Job) -> None:
+        survey = self._survey(session, job)
+        survey.status, survey.error = SurveyStatus.processing, None
