@@ -10,11 +10,9 @@ from shapely.geometry import shape
 from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
-from backend.config import get_settings
 from backend.db.models import Comparison, Detection, Job, JobState
 from backend.services import alerts, models
-from backend.storage import LocalStorage
-from worker.jobs.products import COG_MEDIA_TYPE, register_product
+from worker.jobs.products import COG_MEDIA_TYPE, StorageJob, register_product
 from worker.pipeline import comparison as pipeline
 from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.progress import ProgressFn
@@ -50,23 +48,13 @@ def comparison_folder(comparison_id: int) -> str:
     return f"comparisons/{comparison_id}"
 
 
-class ComparisonJob:
+class ComparisonJob(StorageJob):
     name = "comparison"
     # The threshold method's stages; a job records its own, by method (stages_for).
     stages: tuple[str, ...] = tuple(pipeline.STAGES)
 
-    def __init__(self, storage: LocalStorage | None = None) -> None:
-        self._storage = storage
-
-    @property
-    def storage(self) -> LocalStorage:
-        return self._storage or LocalStorage(get_settings().storage_dir)
-
     def _comparison(self, session: Session, job: Job) -> Comparison:
-        comparison = session.get(Comparison, job.comparison_id)
-        if comparison is None:
-            raise LookupError(f"comparison {job.comparison_id} of job {job.id} is gone")
-        return comparison
+        return self.owner(session, Comparison, job.comparison_id, job.id)
 
     def load_inputs(self, session: Session, job: Job) -> dict[str, Any]:
         comparison = self._comparison(session, job)

@@ -1,15 +1,37 @@
-"""Record a job's output file as a downloadable product of a survey or a comparison."""
+"""What the job kinds working in file storage share: the storage, their owner row, products."""
 
 from pathlib import Path
+from typing import TypeVar
 
 import rasterio
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from backend.config import get_settings
 from backend.db.models import Product, StoredFile
 from backend.storage import LocalStorage, file_digest
 
+T = TypeVar("T")
+
 COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
+
+
+class StorageJob:
+    """Base of the job kinds whose stages work in the platform's file storage."""
+
+    def __init__(self, storage: LocalStorage | None = None) -> None:
+        self._storage = storage
+
+    @property
+    def storage(self) -> LocalStorage:
+        return self._storage or LocalStorage(get_settings().storage_dir)
+
+    def owner(self, session: Session, model: type[T], owner_id: int | None, job_id: int) -> T:
+        """The row the job works for (its comparison, its survey)."""
+        row = session.get(model, owner_id)
+        if row is None:
+            raise LookupError(f"{model.__name__.lower()} {owner_id} of job {job_id} is gone")
+        return row
 
 
 def raster_crs(path: Path) -> str | None:

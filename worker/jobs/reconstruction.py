@@ -13,10 +13,8 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from backend.config import get_settings
 from backend.db.models import Job, Survey, SurveyKind, SurveyStatus
-from backend.storage import LocalStorage
-from worker.jobs.products import COG_MEDIA_TYPE, register_product
+from worker.jobs.products import COG_MEDIA_TYPE, StorageJob, register_product
 from worker.pipeline import reconstruction as pipeline
 from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.dsm_inspect import inspect_dsm
@@ -50,22 +48,12 @@ def _link_images(images: dict[str, str], folder: Path) -> None:
         link.symlink_to(target)
 
 
-class ReconstructionJob:
+class ReconstructionJob(StorageJob):
     name = "reconstruction"
     stages: tuple[str, ...] = tuple(pipeline.STAGES)
 
-    def __init__(self, storage: LocalStorage | None = None) -> None:
-        self._storage = storage
-
-    @property
-    def storage(self) -> LocalStorage:
-        return self._storage or LocalStorage(get_settings().storage_dir)
-
     def _survey(self, session: Session, job: Job) -> Survey:
-        survey = session.get(Survey, job.survey_id)
-        if survey is None:
-            raise LookupError(f"survey {job.survey_id} of job {job.id} is gone")
-        return survey
+        return self.owner(session, Survey, job.survey_id, job.id)
 
     def load_inputs(self, session: Session, job: Job) -> dict[str, Any]:
         survey = self._survey(session, job)
