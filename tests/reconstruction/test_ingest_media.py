@@ -199,10 +199,12 @@ def test_intrinsics_from_table_exif_override_and_default():
 # -- video --------------------------------------------------------------------------------
 
 
-def make_video(path: Path, codec: str = "libx264", frames: int = 30, fps: int = 30) -> Path:
+def make_video(
+    path: Path, codec: str = "libx264", frames: int = 30, fps: int = 30, pix_fmt: str = "yuv420p"
+) -> Path:
     container = av.open(str(path), "w")
     stream = container.add_stream(codec, rate=fps)
-    stream.width, stream.height, stream.pix_fmt = 320, 240, "yuv420p"
+    stream.width, stream.height, stream.pix_fmt = 320, 240, pix_fmt
     if codec == "libx265":
         stream.options = {"x265-params": "log-level=error"}
     rng = np.random.default_rng(1)
@@ -229,6 +231,31 @@ def test_video_frames_with_presentation_times(tmp_path, codec, name):
     np.testing.assert_allclose([f.t for f in frames], np.arange(0, 15, 2) / 30, atol=1e-6)
     assert frames[0].image.shape == (120, 160) and frames[0].image.dtype == np.uint8
     assert not reader.warnings
+
+
+@pytest.mark.parametrize(
+    ("pix_fmt", "size"),
+    [("yuv420p", (160, 120)), ("yuv420p", None), ("yuvj420p", (160, 120)), ("yuv444p", None)],
+)
+def test_grey_frames_match_the_ffmpeg_scaler(tmp_path, pix_fmt, size):
+    """Grey frames come from the luma plane: FFmpeg's grey (range expansion of limited-range
+    video, area averaging) to within one level."""
+    path = make_video(tmp_path / "clip.mp4", frames=6, pix_fmt=pix_fmt)
+    width, height = size or (None, None)
+    container = av.open(str(path))
+    expected = [
+        f.reformat(width=width, height=height, format="gray", interpolation="AREA").to_ndarray()
+        for f in container.decode(video=0)
+    ]
+    container.close()
+    frames = list(VideoReader(path).frames(size=size))
+    assert len(frames) == len(expected) == 6
+    for frame, want in zip(frames, expected, strict=True):
+        assert frame.image.shape == want.shape and frame.image.flags.c_contiguous
+        diff = np.abs(frame.image.astype(int) - want)
+        assert diff.max() <= 1 and diff.mean() < 0.5
+        if size is None:
+            assert diff.max() == 0  # no resizing: the same look-up as FFmpeg
 
 
 def test_corrupt_and_missing_video(tmp_path):

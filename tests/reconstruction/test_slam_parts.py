@@ -11,7 +11,9 @@ from worker.pipeline.frames import (
     KeyframePolicy,
     iter_prepared_frames,
     prepare_video_frames,
+    read_frame_scan,
     sharpness,
+    tracking_frames,
 )
 from worker.pipeline.pointcloud import grid_outliers, read_ply, statistical_outliers, write_ply
 from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
@@ -113,6 +115,25 @@ def test_windowed_bundle_adjustment_with_fixed_frames():
     assert max(err[:4]) < 1e-9  # fixed
     assert max(err) < 0.1
     assert report.final_cost < report.initial_cost and report.points > 500
+
+
+def test_bundle_adjustment_leaves_out_points_seen_once():
+    _, r_cw, centres, pts, obs = _ba_scene(2, n_cam=6, n_pts=300)
+    poses = {i: (r_cw, -r_cw @ c) for i, c in enumerate(centres)}
+    # Keyframe 5 alone sees points 1000..1019; point 0 is left out of the problem.
+    ids5, uv5 = obs[5]
+    obs[5] = (np.concatenate([ids5, np.arange(1000, 1020)]), np.vstack([uv5, uv5[:20]]))
+    points = {j: pts[j] for j in range(1, len(pts))}
+    points.update({j: pts[0] for j in range(1000, 1020)})
+    seen = np.concatenate([ids for ids, _ in obs.values()])
+    ids, counts = np.unique(seen[np.isin(seen, list(points))], return_counts=True)
+    _, new_points, report = bundle_adjust(
+        BAProblem(poses, obs, points, fixed={0, 1}), K, (640, 360), max_iterations=3
+    )
+    assert sorted(new_points) == ids[counts >= 2].tolist()
+    assert report.points == 166 and report.points == len(new_points)
+    assert report.observations == counts[counts >= 2].sum() == 866
+    assert report.keyframes == 6
 
 
 def test_pose_priors_move_the_model_onto_gnss():
@@ -263,6 +284,36 @@ def test_frames_stage_drops_blurred_frames(tmp_path):
     assert frames[0].image.shape == (180, 320)
 
 
+def test_frames_stage_stores_only_the_tracked_frames(tmp_path):
+    import av
+
+    path = tmp_path / "v.mp4"
+    base = texture((400, 1400), 5)
+    container = av.open(str(path), "w")
+    stream = container.add_stream("libx264", rate=20)
+    stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
+    for i in range(30):
+        image = np.ascontiguousarray(base[20:380, 10 * i : 10 * i + 640])
+        frame = av.VideoFrame.from_ndarray(image, format="gray")
+        for packet in stream.encode(frame):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+    # 5 px per frame at half size: a 12 px step takes every third frame, and the last.
+    result = prepare_video_frames(
+        path, tmp_path / "frames", FrameOptions(width=320, height=180), track_step_px=12.0
+    )
+    scan = read_frame_scan(tmp_path / "frames" / "frames.csv")
+    stored = scan.index[scan.stored]
+    assert stored.tolist() == [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 29]
+    assert stored.tolist() == tracking_frames(scan, 12.0, 0.5).tolist()
+    assert result.to_dict()["stored"] == 11 and result.to_dict()["kept"] == 30
+    frames = list(iter_prepared_frames(tmp_path / "frames"))
+    assert [f.index for f in frames] == stored.tolist()
+    np.testing.assert_allclose([f.t for f in frames], stored / 20, atol=1e-6)
+
+
 def test_tracking_loss_starts_a_new_segment(terrain):
     """Fly along x, jump 150 m (nothing in common), fly on: two segments, each a good
     trajectory up to a similarity."""
@@ -295,3 +346,31 @@ def test_tracking_loss_starts_a_new_segment(terrain):
         sim = umeyama(traj.positions, truth[idx])
         err = np.linalg.norm(sim.apply(traj.positions) - truth[idx], axis=1)
         assert len(traj) > 20 and err.max() < 0.3
+
+
+def test_densification_in_the_worker_thread_is_repeatable(terrain):
+    """SGBM runs beside the tracking; its inputs are fixed when queued, so two runs give
+    the same dense cloud."""
+    from worker.pipeline.ingest.camera import resolve_intrinsics
+    from worker.pipeline.slam.system import SlamOptions, run_slam
+
+    grid, dsm, _ = terrain
+    ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
+    camera = CameraModel.phantom4pro(320, 180)
+    renderer = HeightFieldRenderer(dsm, grid, ortho, camera, RenderOptions(noise_sigma=0.5))
+    r = rotation_world_from_camera(90.0, -90.0, 0.0)
+    centres = [np.array([-30.0 + 1.2 * i, 0.0, 110.0]) for i in range(40)]
+    frames = [
+        (i / 10.0, i, cv2.cvtColor(renderer.render(c, r).image, cv2.COLOR_RGB2GRAY))
+        for i, c in enumerate(centres)
+    ]
+    intr = resolve_intrinsics(320, 180, exif_model="FC6310")
+    options = SlamOptions(init_parallax_px=12.0, init_min_points=40)
+    options.keyframes.parallax_px = 15.0
+    first = run_slam(frames, intr, options)
+    second = run_slam(frames, intr, options)
+    assert first.stats["counts"]["dense_pairs"] >= 8
+    assert first.dense_xyz.shape[0] > 20000
+    np.testing.assert_array_equal(first.dense_xyz, second.dense_xyz)
+    np.testing.assert_array_equal(first.dense_kf, second.dense_kf)
+    assert first.stats["timing_s"]["densify_thread"] > 0

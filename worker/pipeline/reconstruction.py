@@ -296,11 +296,15 @@ def frames(
     else:
         video = ing["inputs"]["video"]
         weight = 0.6 if method == "sfm" else 1.0
+        slam = options.slam
         result = prepare_video_frames(
             Path(video),
             work_dir / FRAMES_DIR,
             options.frames,
             lambda f: progress(weight * f),
+            # slam tracks a subset of the frames: store only those (sfm reads stills).
+            track_step_px=slam.track_step_px if method == "slam" else 0.0,
+            track_max_gap_s=slam.track_max_gap_s,
         )
         out["frames"] = result.to_dict()
         prior = TimeOffset(**{**ing["time_offset_prior"], "warnings": []})
@@ -375,6 +379,11 @@ def reconstruct(
         wanted = set(
             tracking_frames(scan, options.slam.track_step_px, options.slam.track_max_gap_s).tolist()
         )
+        if not wanted <= set(scan.index[scan.stored].tolist()):
+            raise InputError(
+                "the frames stage stored the frames of other tracking options "
+                "(slam track_step_px, track_max_gap_s): run the frames stage again"
+            )
         stream = (
             (f.t, f.index, f.image)
             for f in iter_prepared_frames(work_dir / FRAMES_DIR)

@@ -10,7 +10,9 @@ ray angle, windowed bundle adjustment (the newest `ba_window` keyframes free, up
 `ba_fixed` older ones fixed; the first two keyframes of a segment stay fixed and set its
 scale), cull points that reproject badly, detect new corners, and densify the keyframes
 that have left the window with SGBM against the partner whose baseline is closest to
-`target_baseline_ratio` of the depth.
+`target_baseline_ratio` of the depth. SGBM runs in a worker thread beside the tracking
+(OpenCV releases the GIL): its inputs are fixed when it is queued, so the result does
+not depend on the timing.
 
 When too few map points are tracked, the segment ends and a new one initialises from
 the current frame ("recovery": segments are placed on the ground independently by the
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -111,20 +114,32 @@ class VisualSlam:
         self.tracker = KltTracker(self.options.tracker)
         self.keyframes: list[_Keyframe] = []
         self.frames: list[_Frame] = []
-        self.points: dict[int, np.ndarray] = {}  # the current segment's
-        self.archived: dict[int, np.ndarray] = {}  # earlier segments' points
-        self.point_segment: dict[int, int] = {}
-        self.dense: list[tuple[int, int, np.ndarray, float]] = []
+        # The current segment's points as arrays sorted by id (tracking, culling and BA
+        # look them up by id in bulk); earlier segments' as (segment, ids, xyz).
+        self.point_ids = np.empty(0, np.int64)
+        self.point_xyz = np.empty((0, 3))
+        self.archived: list[tuple[int, np.ndarray, np.ndarray]] = []
+        # (keyframe index, partner index, points in the keyframe's frame, baseline)
+        self.dense: list[tuple[int, int, Future[np.ndarray], float]] = []
+        self._densifier = ThreadPoolExecutor(max_workers=1, thread_name_prefix="densify")
         self.segment = -1
         self.segment_start = 0  # index of the segment's first keyframe
         self.state = "init"
         self.ref: _Reference | None = None
         self.velocity: tuple[np.ndarray, np.ndarray] | None = None
         self.last_pose: tuple[np.ndarray, np.ndarray] | None = None
-        self._cache_ids = np.empty(0, np.int64)
-        self._cache_xyz = np.empty((0, 3))
         self.timing: dict[str, float] = {
-            k: 0.0 for k in ("track", "init", "pose", "keyframe", "ba", "densify")
+            k: 0.0
+            for k in (
+                "track",
+                "init",
+                "pose",
+                "keyframe",
+                "ba",
+                "densify",  # choosing partners and queueing
+                "densify_thread",  # SGBM and depth, in the worker thread
+                "densify_wait",  # waiting for the worker at the end
+            )
         }
         self.counts: dict[str, int] = {
             "frames": 0,
@@ -174,7 +189,14 @@ class VisualSlam:
     def finish(self) -> SparseMap:
         """Densify what is left and return the map (segments too short are dropped)."""
         self._densify(final=True)
+        t0 = time.perf_counter()
+        self._densifier.shutdown(wait=True)
+        self.timing["densify_wait"] += time.perf_counter() - t0
         return self._build_map()
+
+    def close(self) -> None:
+        """Stop the densification thread (finish does it too)."""
+        self._densifier.shutdown(wait=True, cancel_futures=True)
 
     # -- initialisation -----------------------------------------------------------------
     def _set_reference(self, t: float, frame_index: int, gray: np.ndarray) -> None:
@@ -217,16 +239,14 @@ class VisualSlam:
                 self._set_reference(t, frame_index, gray)
             return False
         # Success: a new segment with two keyframes; earlier points are put aside.
-        self.archived.update(self.points)
-        self.points = {}
+        if len(self.point_ids):
+            self.archived.append((self.segment, self.point_ids, self.point_xyz))
+        self.point_ids, self.point_xyz = np.empty(0, np.int64), np.empty((0, 3))
         self.segment += 1
         self.segment_start = len(self.keyframes)
         kf0 = self._new_keyframe(ref.t, ref.frame_index, r0, t0, ref.ids, ref.uv, ref.image)
         self._record_frame(ref.t, r0, t0, True, kf0.index)
-        for pid, x in zip(common[good].tolist(), xyz[good], strict=True):
-            self.points[pid] = x
-            self.point_segment[pid] = self.segment
-        self._refresh_cache()
+        self._add_points(common[good], xyz[good])
         kf1 = self._new_keyframe(t, frame_index, r, t1, ids, pts, gray)
         self._record_frame(t, r, t1, True, kf1.index)
         self._bundle(fix_all=True)
@@ -255,25 +275,30 @@ class VisualSlam:
         return xyz, good, angle
 
     # -- tracking -------------------------------------------------------------------------
-    def _refresh_cache(self) -> None:
-        """Sorted ids and positions of the current segment's points (tracks that
-        outlive a segment must not bring the old segment's frame into the new one)."""
-        ids = np.fromiter(self.points.keys(), dtype=np.int64, count=len(self.points))
-        order = np.argsort(ids)
-        self._cache_ids = ids[order]
-        if len(ids):
-            self._cache_xyz = np.array([self.points[i] for i in self._cache_ids.tolist()])
-        else:
-            self._cache_xyz = np.empty((0, 3))
+    def _add_points(self, ids: np.ndarray, xyz: np.ndarray) -> None:
+        """Add points with new ids to the current segment (tracks that outlive a segment
+        get new points: the old segment's frame must not leak into the new one)."""
+        all_ids = np.concatenate([self.point_ids, ids.astype(np.int64)])
+        order = np.argsort(all_ids, kind="stable")
+        self.point_ids = all_ids[order]
+        self.point_xyz = np.concatenate([self.point_xyz, xyz.reshape(-1, 3)])[order]
+
+    def _remove_points(self, ids: np.ndarray) -> None:
+        keep = ~np.isin(self.point_ids, ids)
+        self.point_ids, self.point_xyz = self.point_ids[keep], self.point_xyz[keep]
+
+    def _points_of(self, ids: np.ndarray) -> np.ndarray:
+        """Positions of current-segment points given by id (all must exist)."""
+        return self.point_xyz[np.searchsorted(self.point_ids, ids)]
 
     def _track_pose(self, ids: np.ndarray, pts: np.ndarray):
         o = self.options
-        pos = np.searchsorted(self._cache_ids, ids)
-        pos = np.clip(pos, 0, max(len(self._cache_ids) - 1, 0))
-        sel = (self._cache_ids[pos] == ids) if len(self._cache_ids) else np.zeros(len(ids), bool)
+        pos = np.searchsorted(self.point_ids, ids)
+        pos = np.clip(pos, 0, max(len(self.point_ids) - 1, 0))
+        sel = (self.point_ids[pos] == ids) if len(self.point_ids) else np.zeros(len(ids), bool)
         if sel.sum() < o.pnp_min_points:
             return None
-        obj = self._cache_xyz[pos[sel]]
+        obj = self.point_xyz[pos[sel]]
         img = pts[sel].astype(np.float64)
         r_prev, t_prev = self.last_pose
         if self.velocity is not None:
@@ -382,7 +407,7 @@ class VisualSlam:
         return self.keyframes[self.segment_start :]
 
     def _triangulate(self, kf: _Keyframe) -> None:
-        candidates = kf.ids[~np.isin(kf.ids, self._cache_ids)]
+        candidates = kf.ids[~np.isin(kf.ids, self.point_ids)]
         older = self._segment_keyframes()[:-1][-self.options.triangulation_window :]
         for other in older:
             if len(candidates) == 0:
@@ -392,11 +417,8 @@ class VisualSlam:
                 continue
             _, ik, _ = np.intersect1d(kf.ids, common, return_indices=True)
             xyz, good, _ = self._two_view(other.r, other.tr, kf.r, kf.tr, other.uv[ia], kf.uv[ik])
-            for pid, x in zip(common[good].tolist(), xyz[good], strict=True):
-                self.points[pid] = x
-                self.point_segment[pid] = self.segment
+            self._add_points(common[good], xyz[good])
             candidates = candidates[~np.isin(candidates, common[good])]
-        self._refresh_cache()
 
     def _bundle(self, fix_all: bool = False) -> list[int]:
         """Windowed BA; returns the keyframe indices that took part."""
@@ -411,10 +433,11 @@ class VisualSlam:
             fixed = {kf.index for kf in included}
         all_ids = np.concatenate([kf.ids for kf in included])
         free_ids = np.unique(np.concatenate([kf.ids for kf in free]))
-        point_ids = free_ids[np.isin(free_ids, self._cache_ids)]
+        point_ids = free_ids[np.isin(free_ids, self.point_ids)]
         if len(point_ids) > o.ba_max_points:
-            seen = np.searchsorted(np.sort(all_ids), point_ids, side="right") - np.searchsorted(
-                np.sort(all_ids), point_ids, side="left"
+            all_ids.sort()
+            seen = np.searchsorted(all_ids, point_ids, side="right") - np.searchsorted(
+                all_ids, point_ids, side="left"
             )
             point_ids = point_ids[np.argsort(-seen, kind="stable")[: o.ba_max_points]]
         if len(point_ids) < 10:
@@ -422,7 +445,7 @@ class VisualSlam:
         problem = BAProblem(
             poses={kf.index: (kf.r, kf.tr) for kf in included},
             observations={kf.index: (kf.ids, kf.uv) for kf in included},
-            points={int(p): self.points[int(p)] for p in point_ids},
+            points=dict(zip(point_ids.tolist(), self._points_of(point_ids), strict=True)),
             fixed=fixed,
         )
         t0 = time.perf_counter()
@@ -434,8 +457,9 @@ class VisualSlam:
         for kf in included:
             if kf.index not in fixed:
                 kf.r, kf.tr = poses[kf.index]
-        self.points.update(points)
-        self._refresh_cache()
+        if points:
+            ids = np.fromiter(points.keys(), np.int64, len(points))
+            self.point_xyz[np.searchsorted(self.point_ids, ids)] = np.array(list(points.values()))
         return [kf.index for kf in included]
 
     def _cull(self, kf_indices: list[int]) -> None:
@@ -443,20 +467,18 @@ class VisualSlam:
         bad: set[int] = set()
         for i in kf_indices:
             kf = self.keyframes[i]
-            sel = np.isin(kf.ids, self._cache_ids)
+            sel = np.isin(kf.ids, self.point_ids)
             ids = kf.ids[sel]
             if len(ids) == 0:
                 continue
-            xyz = self._cache_xyz[np.searchsorted(self._cache_ids, ids)]
+            xyz = self._points_of(ids)
             proj, z = project(kf.r, kf.tr, self.k, xyz)
             err = np.linalg.norm(proj - kf.uv[sel], axis=1)
             bad.update(ids[(err > self.options.cull_reproj_px) | (z <= 0)].tolist())
         if bad:
-            for pid in bad:
-                self.points.pop(pid, None)
-                self.point_segment.pop(pid, None)
-            self.tracker.remove(np.fromiter(bad, dtype=np.int64))
-            self._refresh_cache()
+            bad_ids = np.fromiter(bad, dtype=np.int64)
+            self._remove_points(bad_ids)
+            self.tracker.remove(bad_ids)
 
     # -- densification --------------------------------------------------------------------
     def _densify(self, final: bool = False) -> None:
@@ -483,10 +505,10 @@ class VisualSlam:
 
     def _densify_keyframe(self, kf: _Keyframe, seg: list[_Keyframe]) -> None:
         o = self.options.densify
-        sel = np.isin(kf.ids, self._cache_ids)
+        sel = np.isin(kf.ids, self.point_ids)
         if sel.sum() < 20:
             return
-        xyz = self._cache_xyz[np.searchsorted(self._cache_ids, kf.ids[sel])]
+        xyz = self._points_of(kf.ids[sel])
         _, z = project(kf.r, kf.tr, self.k, xyz)
         z = z[z > 0]
         if z.size < 20:
@@ -505,13 +527,25 @@ class VisualSlam:
         if best is None:
             return
         lo, hi = np.percentile(z, [2, 98])
-        pts = densify_pair(
-            kf.image, best.image, self.k, (kf.r, kf.tr), (best.r, best.tr), (lo, hi), o
+        future = self._densifier.submit(
+            self._densify_pair,
+            kf.image,
+            best.image,
+            self.k,
+            (kf.r.copy(), kf.tr.copy()),
+            (best.r.copy(), best.tr.copy()),
+            (lo, hi),
+            o,
         )
-        if len(pts):
-            baseline = float(np.linalg.norm(camera_center(best.r, best.tr) - centre))
-            self.dense.append((kf.index, best.index, pts, baseline))
-            self.counts["dense_pairs"] += 1
+        baseline = float(np.linalg.norm(camera_center(best.r, best.tr) - centre))
+        self.dense.append((kf.index, best.index, future, baseline))
+
+    def _densify_pair(self, *args: Any) -> np.ndarray:
+        """`densify_pair` in the worker thread, timed (only that thread adds to the key)."""
+        t0 = time.perf_counter()
+        pts = densify_pair(*args)
+        self.timing["densify_thread"] += time.perf_counter() - t0
+        return pts
 
     # -- output ---------------------------------------------------------------------------
     def _build_map(self) -> SparseMap:
@@ -522,22 +556,25 @@ class VisualSlam:
         keep_segments = {s for s, n in counts.items() if n >= o.min_segment_keyframes}
         dropped = sorted(set(counts) - keep_segments)
         kfs = [kf for kf in self.keyframes if kf.segment in keep_segments]
-        all_points = {**self.archived, **self.points}
         new_index = {kf.index: i for i, kf in enumerate(kfs)}
         obs_kf, obs_pt, obs_uv = [], [], []
-        point_ids = np.array(
-            sorted(
-                p for p, s in self.point_segment.items() if s in keep_segments and p in all_points
-            ),
-            np.int64,
-        )
+        # Every segment's points; an id a later segment triangulated again is the later one's.
+        parts = [*self.archived, (self.segment, self.point_ids, self.point_xyz)][::-1]
+        pt_ids = np.concatenate([p[1] for p in parts])
+        pt_xyz = np.concatenate([p[2] for p in parts])
+        pt_seg = np.concatenate([np.full(len(p[1]), p[0], np.int32) for p in parts])
+        _, first = np.unique(pt_ids, return_index=True)
+        first = first[np.isin(pt_seg[first], sorted(keep_segments))]
+        point_ids = pt_ids[first]
         for kf in kfs:
             sel = np.isin(kf.ids, point_ids)
             obs_kf.append(np.full(sel.sum(), new_index[kf.index], np.int32))
             obs_pt.append(kf.ids[sel])
             obs_uv.append(kf.uv[sel].astype(np.float32))
         frames = [f for f in self.frames if f.segment in keep_segments]
-        dense = [d for d in self.dense if d[0] in new_index and d[1] in new_index]
+        dense = [(a, b, f.result(), base) for a, b, f, base in self.dense]
+        self.counts["dense_pairs"] = sum(len(d[2]) > 0 for d in dense)
+        dense = [d for d in dense if len(d[2]) and d[0] in new_index and d[1] in new_index]
         stats = {
             "counts": dict(self.counts),
             "timing_s": {k: round(v, 3) for k, v in self.timing.items()},
@@ -560,10 +597,8 @@ class VisualSlam:
             obs_point=np.concatenate(obs_pt) if obs_pt else np.empty(0, np.int64),
             obs_uv=np.concatenate(obs_uv) if obs_uv else np.empty((0, 2), np.float32),
             point_id=point_ids,
-            point_xyz=stack([all_points[p] for p in point_ids.tolist()], (0, 3), np.float64),
-            point_segment=stack(
-                [self.point_segment[p] for p in point_ids.tolist()], (0,), np.int32
-            ),
+            point_xyz=pt_xyz[first],
+            point_segment=pt_seg[first],
             fr_t=stack([f.t for f in frames], (0,), np.float64),
             fr_segment=stack([f.segment for f in frames], (0,), np.int32),
             fr_r=stack([f.r for f in frames], (0, 3, 3), np.float64),
@@ -600,11 +635,14 @@ def run_slam(
     """Run the SLAM over (t, frame index, grey image) tuples; returns the map."""
     slam = VisualSlam(intrinsics, options)
     start = time.perf_counter()
-    for n, (t, index, gray) in enumerate(frames, start=1):
-        slam.process(t, index, gray)
-        if total_frames and n % 25 == 0:
-            progress(min(0.95 * n / total_frames, 0.95))
-    result = slam.finish()
+    try:
+        for n, (t, index, gray) in enumerate(frames, start=1):
+            slam.process(t, index, gray)
+            if total_frames and n % 25 == 0:
+                progress(min(0.95 * n / total_frames, 0.95))
+        result = slam.finish()
+    finally:
+        slam.close()
     result.stats["seconds"] = round(time.perf_counter() - start, 3)
     progress(1.0)
     return result
