@@ -3,10 +3,11 @@
     slidewatch bench detection --json benchmarks/results/detection.json
 
 A subcommand of the `bench` group (worker/commands/bench.py). The detection benchmark
-simulates its data, trains the paper's two models (cached in
---work-dir, resumable), evaluates every detector on patterns A-D on paper-mounds and the
-hillslope, checks no-change pairs for false alarms and measures inference speed; it
-prints the tables and writes everything to --json (worker/pipeline/cnn/benchmark.py).
+simulates its data (survey videos reconstructed by slidewatch), trains the paper's two
+models (cached in --work-dir, resumable), evaluates every detector on patterns A-D on
+paper-mounds and the hillslope, checks no-change pairs for false alarms and measures
+inference speed; it prints the tables and writes everything to --json
+(worker/pipeline/cnn/benchmark.py).
 """
 
 from __future__ import annotations
@@ -35,6 +36,13 @@ import click
     help="Default: both.",
 )
 @click.option("--paper-epochs", type=int, default=100, show_default=True)
+@click.option(
+    "--dsm-source",
+    type=click.Choice(["reconstruction", "recon-noise"]),
+    default="reconstruction",
+    show_default=True,
+    help="DSMs reconstructed from rendered survey video, or degraded truth (quick, interim).",
+)
 @click.option("--no-speed", is_flag=True, help="Skip the inference-speed measurement.")
 @click.option(
     "--threads", type=int, default=2, show_default=True, help="Torch threads for the tables."
@@ -55,6 +63,7 @@ def detection(
     model: str | None,
     scenarios: tuple[str, ...],
     paper_epochs: int,
+    dsm_source: str,
     no_speed: bool,
     threads: int,
     speed_threads: int,
@@ -73,6 +82,7 @@ def detection(
         threads=threads,
         speed_threads=speed_threads,
         speed_size=speed_size,
+        dsm_source=dsm_source,
     )
     click.echo(report["text"])
     click.echo("")

@@ -71,6 +71,12 @@ EXIT_INPUT_ERROR = 2
 )
 @click.option("--flights-per-step", type=click.IntRange(1, 10), default=1, show_default=True)
 @click.option(
+    "--slides/--no-slides",
+    default=True,
+    show_default=True,
+    help="--no-slides: the steps differ by vegetation growth and small surface changes only.",
+)
+@click.option(
     "--gnss",
     type=click.Choice(["standalone", "rtk", "none"]),
     default="standalone",
@@ -113,6 +119,7 @@ def simulate_command(
     altitude_m: float | None,
     speed_m_s: float | None,
     flights_per_step: int,
+    slides: bool,
     gnss: str,
     log_time_offset_s: float,
     csv_units: str,
@@ -133,6 +140,7 @@ def simulate_command(
         altitude_m=altitude_m,
         speed_m_s=speed_m_s,
         flights_per_step=flights_per_step,
+        slides=slides,
         gnss=gnss,
         log_time_offset_s=log_time_offset_s,
         csv_units=csv_units,

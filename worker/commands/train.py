@@ -6,8 +6,11 @@
     slidewatch train --simulate training-set --data-dir data/cnn-train --out models/ \\
         --threads 1       # the shipped SlideNet's data and options
 
-`--dataset` takes any detection dataset manifest (worker/pipeline/cnn/dataset.py): the
-interim one made by `--simulate` today, one pointing at reconstructed DSMs tomorrow.
+`--dataset` takes any detection dataset manifest (worker/pipeline/cnn/dataset.py).
+`--simulate` makes one: the scenario's survey videos rendered and reconstructed by
+slidewatch, as the paper trained on its own DSO DSMs (cnn/reconstructed_data.py), or with
+`--dsm-source recon-noise` the quick interim stand-in (truth DSMs degraded by
+cnn/recon_noise.py, no rendering).
 The test pair/region of the manifest is held out unless `--include-test`. Seeded and
 resumable: run the same command again after an interruption and it continues from the
 last finished epoch. Prints one JSON line: the model card's path, the model version,
@@ -39,7 +42,14 @@ EXIT_INPUT_ERROR = 2
     "--simulate",
     type=click.Choice(["paper-mounds", "hillslope", "training-set"]),
     default=None,
-    help="Simulate this scenario (truth only) and make its interim dataset (in --data-dir).",
+    help="Simulate this scenario and make its dataset (in --data-dir).",
+)
+@click.option(
+    "--dsm-source",
+    type=click.Choice(["reconstruction", "recon-noise"]),
+    default="reconstruction",
+    show_default=True,
+    help="--simulate: DSMs reconstructed from rendered video, or degraded truth (interim).",
 )
 @click.option(
     "--data-dir", type=click.Path(path_type=Path), default=None, help="Where --simulate writes."
@@ -60,6 +70,7 @@ EXIT_INPUT_ERROR = 2
 def train(
     dataset_path: Path | None,
     simulate: str | None,
+    dsm_source: str,
     data_dir: Path | None,
     out_dir: Path,
     model_kind: str,
@@ -73,16 +84,28 @@ def train(
     """Train a detection model; print the model card path and metrics as JSON."""
     from worker.pipeline.cnn.trainer import train_model
 
+    def log(message: str) -> None:
+        click.echo(message, err=True)
+
     try:
         if simulate:
-            from worker.pipeline.cnn.simdata import default_training_set, simulate_dataset
+            from worker.pipeline.cnn.reconstructed_data import (
+                default_training_set,
+                reconstructed_dataset,
+                survey_simulation,
+            )
+            from worker.pipeline.cnn.simdata import simulate_dataset
 
             folder = data_dir or out_dir / f"data-{simulate}-seed{seed}"
             if simulate == "training-set":
-                dataset_path = default_training_set(folder)
+                dataset_path = default_training_set(folder, log=log)
             else:
                 dataset_path = folder / "dataset.json"
-                if not dataset_path.exists():
+                if dataset_path.exists():
+                    pass
+                elif dsm_source == "reconstruction":
+                    reconstructed_dataset(folder, simulate, survey_simulation(seed), log=log)
+                else:
                     simulate_dataset(folder, simulate, seed)
         if dataset_path is None:
             raise InputError("give --dataset MANIFEST or --simulate SCENARIO")
@@ -92,9 +115,6 @@ def train(
             overrides["epochs"] = epochs
         if max_per_class is not None and model_kind != "slidenet":
             overrides["max_per_class"] = max_per_class
-
-        def log(message: str) -> None:
-            click.echo(message, err=True)
 
         result = train_model(
             dataset_path,

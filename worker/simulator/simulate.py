@@ -78,6 +78,9 @@ class SimulationOptions:
     altitude_m: float | None = None
     speed_m_s: float | None = None
     flights_per_step: int = 1
+    slides: bool = True
+    """False: the steps differ by the scenario's nuisance only (vegetation growth, small
+    surface changes): surveys of a slope where nothing slid, for false-alarm checks."""
     gnss: str = "standalone"
     log_time_offset_s: float = 0.0
     """The logged states in the CSV are those of `offset` seconds earlier than the
@@ -260,7 +263,7 @@ def _simulate(
         if k > 1:
             scene, change = advance(
                 scene,
-                spec.slides(k, n_steps),
+                spec.slides(k, n_steps) if opts.slides else [],
                 spec.nuisance,
                 rng_for(opts.seed, "step", k),
                 dsm_before=dsm,

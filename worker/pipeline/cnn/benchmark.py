@@ -3,8 +3,11 @@ no-change pairs, and inference speed.
 
 `run_benchmark(work_dir)`:
 
-1. Data: the interim datasets (simdata.simulate_dataset) of paper-mounds (seed 0,
-   test Step1->Step5 on mound A) and hillslope (seed 0, test Step1->Step2 everywhere).
+1. Data: paper-mounds (seed 0, test Step1->Step5 on mound A) and hillslope (seed 0,
+   test Step1->Step2 everywhere), each survey's video rendered by the simulator and
+   reconstructed by slidewatch (reconstructed_data.py), as the paper tested on its DSO
+   DSMs; `dsm_source="recon-noise"` uses the quick interim stand-in instead (truth DSMs
+   degraded by recon_noise.py, no rendering).
 2. Models: the paper's PatchNet, fixed and loose, trained by Table 3 on paper-mounds
    with the test region held out (1561 patches per class, the paper's count; cached in
    work_dir/models and resumed if interrupted); our best: the shipped default SlideNet
@@ -12,8 +15,9 @@ no-change pairs, and inference speed.
 3. Tables: patch-wise P/R/F1 per detector and pattern A-D (evaluation.py), on
    paper-mounds, and on the hillslope with the patterns and thresholds at ten times the
    scale (the models never saw the hillslope: their inputs are scale-free).
-4. False alarms: no-change pairs (vegetation growth, nuisance, pattern C registration
-   error) of both scenarios, other seeds.
+4. False alarms: no-change pairs (two surveys a step apart with vegetation growth and
+   nuisance only, reconstructed like the rest; pattern C registration error added) of
+   both scenarios, seed 1.
 5. Speed: the detect stage on a 5000 x 5000 pixel pair at 20 cm/pixel (1 km2), in km2
    per minute of wall time, with `threads` torch threads; and the network alone.
 """
@@ -42,14 +46,37 @@ def _log(message: str) -> None:
     print(message, flush=True)
 
 
-def ensure_dataset(work_dir: Path, scenario: str, seed: int) -> Path:
-    from worker.pipeline.cnn.simdata import simulate_dataset
+DSM_SOURCES = ("reconstruction", "recon-noise")
 
-    folder = Path(work_dir) / "data" / f"{scenario}-seed{seed}"
+
+def ensure_dataset(
+    work_dir: Path,
+    scenario: str,
+    seed: int,
+    dsm_source: str = "reconstruction",
+    slides: bool = True,
+) -> Path:
+    """The dataset of `scenario` (cached in work_dir/data); `slides=False`: a no-change
+    pair, Step1 -> Step2 with nuisance only."""
+    from worker.pipeline.cnn.reconstructed_data import reconstructed_dataset, survey_simulation
+    from worker.pipeline.cnn.simdata import simulate_dataset, write_no_change_dataset
+
+    if dsm_source not in DSM_SOURCES:
+        raise ValueError(f"dsm_source must be one of {DSM_SOURCES}")
+    name = f"{scenario}-seed{seed}" + ("" if slides else "-no-change")
+    interim = dsm_source != "reconstruction"
+    folder = Path(work_dir) / "data" / (name + ("-interim" if interim else ""))
     manifest = folder / "dataset.json"
-    if not manifest.exists():
+    if manifest.exists():
+        return manifest
+    if not interim:
+        simulation = survey_simulation(seed, None if slides else 2, slides)
+        reconstructed_dataset(folder, scenario, simulation, log=_log)
+    elif slides:
         _log(f"simulating {scenario} (seed {seed}) and degrading its DSMs ...")
         simulate_dataset(folder, scenario, seed)
+    else:
+        write_no_change_dataset(folder, scenario, seed)
     return manifest
 
 
@@ -145,8 +172,12 @@ def run_benchmark(
     threads: int = 2,
     speed_threads: int = 2,
     speed_size: int = 5000,
+    dsm_source: str = "reconstruction",
 ) -> dict[str, Any]:
     import torch
+
+    from worker.pipeline.cnn.dataset import load_pair
+    from worker.simulator.registration import registration_patterns, shift_dsm
 
     torch.set_num_threads(threads)
     work = Path(work_dir)
@@ -160,10 +191,11 @@ def run_benchmark(
             "held_out": best.card.training.get("exclude"),
             "interim_training_data": best.card.interim,
         },
+        "dsm_source": dsm_source,
         "tables": {},
         "no_change": {},
     }
-    mounds_manifest = ensure_dataset(work, "paper-mounds", 0)
+    mounds_manifest = ensure_dataset(work, "paper-mounds", 0, dsm_source)
     patch_models = ensure_paper_models(mounds_manifest, work, paper_epochs, threads=threads)
     report["paper_models"] = {
         k: {"version": v.version, "card": str(v.path.with_suffix(".json"))}
@@ -171,7 +203,7 @@ def run_benchmark(
     }
     texts = []
     for scenario in scenarios:
-        manifest_path = ensure_dataset(work, scenario, 0)
+        manifest_path = ensure_dataset(work, scenario, 0, dsm_source)
         manifest = load_manifest(manifest_path)
         _log(f"evaluating on {scenario} ...")
         results = evaluate_manifest(
@@ -185,18 +217,23 @@ def run_benchmark(
         )
         texts.append(format_table(results, title))
     for scenario in scenarios:
-        from worker.pipeline.cnn.simdata import no_change_pair
-        from worker.simulator.registration import registration_patterns, shift_dsm
-
         scale = 10.0 if scenario == "hillslope" else 1.0
-        pre, post, transform, crs, px = no_change_pair(scenario, seed=1)
+        no_change = load_manifest(ensure_dataset(work, scenario, 1, dsm_source, slides=False))
+        pair = load_pair(no_change.pairs[0])
         shift = registration_patterns(scale)["C"]
-        shifted = shift_dsm(post, px, shift).astype(np.float32)
+        shifted = shift_dsm(pair.post, pair.pixel_size_m, shift).astype(np.float32)
         _log(f"no-change pair on {scenario} (pattern C: {shift}) ...")
         report["no_change"][scenario] = {
             "shift_m": list(shift),
             **false_alarms(
-                pre, shifted, transform, crs, px, best, work / "no-change" / scenario, threads
+                pair.pre,
+                shifted,
+                pair.transform,
+                pair.crs,
+                pair.pixel_size_m,
+                best,
+                work / "no-change" / scenario,
+                threads,
             ),
         }
     if speed:

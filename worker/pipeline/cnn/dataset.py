@@ -96,6 +96,7 @@ class DatasetManifest:
             "manifest": str(self.path),
             "name": self.name,
             "interim": self.interim,
+            "interim_parts": self.raw.get("interim_parts", []),
             "dsm_source": self.dsm_source,
             "description": self.description,
             "pairs": [p.id for p in self.pairs],

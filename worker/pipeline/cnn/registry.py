@@ -129,14 +129,22 @@ def load_model(path: Path) -> LoadedModel:
 
 
 def publish_model(
-    card_path: Path, folder: Path, name: str, notes: str = "", benchmark: dict | None = None
+    card_path: Path,
+    folder: Path,
+    name: str,
+    notes: str = "",
+    benchmark: dict | None = None,
+    decision: dict | None = None,
 ) -> Path:
     """Copy a registered model into another registry folder under a new name (e.g. the
     package's default); the card keeps everything else and records where it came from.
-    Also writes `<name>.md`, the card in words."""
+    `decision` updates the decision rule (e.g. a calibrated min_score). Also writes
+    `<name>.md`, the card in words."""
     loaded = load_model(card_path)
     card = ModelCard.from_dict(loaded.card.to_dict())
     card.training = {**card.training, "published_from": f"{loaded.card.name}@{loaded.card.version}"}
+    if decision:
+        card.decision = {**card.decision, **decision}
     if notes:
         card.description = f"{card.description} {notes}".strip()
     if benchmark:
@@ -171,12 +179,18 @@ def model_card_markdown(card: ModelCard) -> str:
         f"{data.get('name', '?')}: {data.get('description', '')}",
         f"DSM source: {data.get('dsm_source', '?')}.",
     ]
-    if card.interim:
+    if card.interim and data.get("interim_parts"):
+        lines += [
+            "",
+            f"**Partly interim**: {', '.join(data['interim_parts'])} are simulator truth "
+            "DSMs degraded by a reconstruction-noise model (docs/detection.md); the rest "
+            "are slidewatch's reconstructions of simulated survey video.",
+        ]
+    elif card.interim:
         lines += [
             "",
             "**Interim**: trained on simulator truth DSMs degraded by a reconstruction-noise "
-            "model, not on DSMs reconstructed from simulated video. Retrain when the "
-            "reconstruction is available (docs/detection.md).",
+            "model, not on DSMs reconstructed from simulated video (docs/detection.md).",
         ]
     lines += [
         "",

@@ -41,6 +41,7 @@ def dataset_from_simulation(
     noise: ReconstructionNoise | None = None,
     noise_seed: int | None = None,
     reconstructed: dict[int, Path] | None = None,
+    name: str | None = None,
 ) -> Path:
     """A detection dataset from a simulator output (`manifest.json`, slidewatch-sim/1).
 
@@ -132,7 +133,7 @@ def dataset_from_simulation(
     write_manifest(
         manifest,
         {
-            "name": f"{sim['scenario']}-seed{seed}" + ("-interim" if interim else ""),
+            "name": (name or f"{sim['scenario']}-seed{seed}") + ("-interim" if interim else ""),
             "interim": interim,
             "dsm_source": (
                 "simulator truth DSMs degraded by recon_noise (interim)"
@@ -376,17 +377,22 @@ def write_no_change_dataset(out_dir: Path, scenario: str, seed: int) -> Path:
 
 def combine_datasets(out_path: Path, name: str, manifests: list[Path]) -> Path:
     """One manifest listing the pairs of several (ids prefixed by each dataset's name);
-    regions and test come from the first. Paths stay relative, so keep the folders."""
+    regions and test come from the first. Paths stay relative, so keep the folders.
+    `dsm_source` says where each part's DSMs come from; `interim` is true when any part
+    is interim, and `interim_parts` names those parts."""
     import json
     import os
 
     out_path = Path(out_path)
     combined: dict[str, Any] = {"name": name, "pairs": [], "regions": {}, "sources": []}
-    interim = False
+    by_source: dict[str, list[str]] = {}
+    interim_parts: list[str] = []
     for k, manifest in enumerate(manifests):
         raw = json.loads(Path(manifest).read_text())
         rel = Path(os.path.relpath(Path(manifest).parent, out_path.parent))
-        interim |= bool(raw.get("interim"))
+        if raw.get("interim"):
+            interim_parts.append(raw["name"])
+        by_source.setdefault(raw.get("dsm_source") or "unknown", []).append(raw["name"])
         combined["sources"].append(str(rel / Path(manifest).name))
         for pair in raw["pairs"]:
             entry = dict(pair)
@@ -400,35 +406,11 @@ def combine_datasets(out_path: Path, name: str, manifests: list[Path]) -> Path:
             for key in ("test", "registration_scale", "scenario", "seed", "noise_model"):
                 if key in raw:
                     combined[key] = raw[key]
-            combined["dsm_source"] = raw.get("dsm_source", "")
-    combined["interim"] = interim
+    combined["dsm_source"] = "; ".join(
+        f"{source} ({', '.join(names)})" for source, names in by_source.items()
+    )
+    combined["interim"] = bool(interim_parts)
+    combined["interim_parts"] = interim_parts
     combined["description"] = "Pairs of: " + ", ".join(combined["sources"])
     write_manifest(out_path, combined)
     return out_path
-
-
-def default_training_set(out_dir: Path) -> Path:
-    """The training data of the shipped SlideNet, rebuilt from the simulator (seeded):
-    paper-mounds seed 0 (its test region is held out at training), no-change pairs of
-    paper-mounds and hillslope (seed 2) and hillslope pairs with random slides (seeds 3
-    and 4). Returns the combined manifest `training-set.json`."""
-    out = Path(out_dir)
-    mounds = out / "paper-mounds-seed0" / "dataset.json"
-    if not mounds.exists():
-        simulate_dataset(mounds.parent, "paper-mounds", 0)
-    parts = [mounds]
-    for scenario in ("paper-mounds", "hillslope"):
-        manifest = out / f"{scenario}-seed2-no-change" / "dataset.json"
-        if not manifest.exists():
-            write_no_change_dataset(manifest.parent, scenario, 2)
-        parts.append(manifest)
-    for seed in (3, 4):
-        manifest = out / f"hillslope-seed{seed}-random-slides" / "dataset.json"
-        if not manifest.exists():
-            write_random_slides_dataset(manifest.parent, "hillslope", seed, 5)
-        parts.append(manifest)
-    return combine_datasets(
-        out / "training-set.json",
-        "paper-mounds-seed0+no-change+hillslope-random-slides-interim",
-        parts,
-    )

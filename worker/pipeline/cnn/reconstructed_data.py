@@ -1,0 +1,225 @@
+"""Detection datasets whose DSMs are slidewatch's own reconstructions of simulated flights.
+
+The paper trains and tests its CNN on DSO DSMs of real flights, "georeferenced manually,
+so that they contained no registration error". Here each simulated survey (video + DJI
+SRT log, rendered by worker/simulator) goes through the reconstruction pipeline, the same
+as `slidewatch reconstruct` (frames, visual SLAM, trajectory georeferencing, DSM export
+with inpainting), and the DSM is then put onto the scenario's truth grid and
+co-registered onto that step's truth DSM (Nuth & Kaab shift and tilt on the whole grid:
+the hand georeferencing). What is left is the reconstruction's own error: noise, holes
+filled by inpainting, smoothing of sharp edges, local drift. Labels are the simulator's
+masks.
+
+Every step is cached in `work_dir`: a step whose registered DSM exists is not redone,
+so an interrupted run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from worker.pipeline.atomic import write_text_atomic
+from worker.pipeline.coregister import CoregisterOptions, coregister
+from worker.pipeline.raster_io import read_elevation, warp_elevation, write_geotiff
+from worker.pipeline.reconstruction import (
+    ReconstructionInputs,
+    ReconstructionOptions,
+    reconstruct_survey,
+)
+
+if TYPE_CHECKING:
+    from worker.simulator import SimulationOptions
+
+REGISTERED = "registered.tif"
+REGISTRATION = "registration.json"
+# A reconstruction further than this from its truth after registration has failed (e.g.
+# a short straight pass rolled about its track): it would teach false changes.
+MAX_NMAD_PX = 5.0
+
+
+@dataclass(frozen=True)
+class RegistrationToTruth:
+    """What putting one reconstructed DSM onto its truth did, and what error remains."""
+
+    shift_enu_m: tuple[float, float, float]
+    nmad_before_m: float
+    nmad_after_m: float
+    valid_fraction: float  # cells of the truth grid with a reconstructed elevation
+
+    def check(self, pixel_size_m: float, what: str, max_nmad_px: float = MAX_NMAD_PX) -> None:
+        """Raise ValueError when the registered DSM is too far from its truth to be used."""
+        nmad_px = self.nmad_after_m / pixel_size_m
+        if not nmad_px <= max_nmad_px:
+            raise ValueError(
+                f"{what}: the reconstructed DSM differs from its truth by an NMAD of "
+                f"{self.nmad_after_m:.3f} m ({nmad_px:.1f} pixels) after registration, more "
+                f"than {max_nmad_px:g} pixels: the reconstruction failed and is not used"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "shift_enu_m": [round(v, 4) for v in self.shift_enu_m],
+            "nmad_before_m": round(self.nmad_before_m, 4),
+            "nmad_after_m": round(self.nmad_after_m, 4),
+            "valid_fraction": round(self.valid_fraction, 4),
+        }
+
+
+def register_to_truth(dsm: Path, truth: Path, out: Path) -> RegistrationToTruth:
+    """Resample `dsm` onto the grid of `truth` and co-register it there (the paper's
+    manual georeferencing); write the result to `out` (GeoTIFF on the truth grid)."""
+    import numpy as np
+
+    source, profile = read_elevation(dsm)
+    _, truth_profile = read_elevation(truth)
+    shape = (int(truth_profile["height"]), int(truth_profile["width"]))
+    warped = warp_elevation(
+        source,
+        profile["transform"],
+        profile["crs"],
+        truth_profile["transform"],
+        truth_profile["crs"],
+        shape,
+    )
+    with tempfile.TemporaryDirectory(dir=Path(out).parent) as tmp:
+        warped_path = Path(tmp) / "warped.tif"
+        write_geotiff(warped_path, warped, truth_profile["transform"], truth_profile["crs"])
+        # The whole survey is one epoch with its truth: nothing moved, so every cell is
+        # stable terrain except the reconstruction's blunders, which the iterations drop.
+        result = coregister(truth, warped_path, out, CoregisterOptions(max_abs_change_m=2.0))
+    return RegistrationToTruth(
+        shift_enu_m=(result.shift_east_m, result.shift_north_m, result.shift_up_m),
+        nmad_before_m=result.nmad_before_m,
+        nmad_after_m=result.nmad_after_m,
+        valid_fraction=float(np.count_nonzero(np.isfinite(warped)) / warped.size),
+    )
+
+
+def reconstruct_simulation(
+    sim_manifest: Path,
+    work_dir: Path,
+    options: ReconstructionOptions | None = None,
+    log: Callable[[str], None] = print,
+    survey_number: int = 0,
+) -> dict[int, Path]:
+    """Reconstruct the video survey of every step of a simulation and register each DSM
+    onto its truth. Returns {step index: registered DSM}; cached per step."""
+    from worker.simulator.manifest import Manifest
+
+    sim = Manifest.load(Path(sim_manifest))
+    work = Path(work_dir)
+    registered: dict[int, Path] = {}
+    for step in sim.steps:
+        k = int(step["index"])
+        folder = work / f"step{k}" if survey_number == 0 else work / f"step{k}-{survey_number}"
+        out = folder / REGISTERED
+        if not out.exists():
+            survey = sim.survey(k, survey_number)
+            if not survey.get("video") or not survey.get("srt"):
+                raise ValueError(f"step {k} of {sim.path} has no video survey with an SRT log")
+            log(f"reconstructing step {k} ({survey['video']}) ...")
+            result = reconstruct_survey(
+                ReconstructionInputs(
+                    video=str(sim.resolve(survey["video"])), log=str(sim.resolve(survey["srt"]))
+                ),
+                folder / "reconstruction",
+                options or ReconstructionOptions(method="slam"),
+            )
+            registration = register_to_truth(result.dsm_path, sim.truth(k), out)
+            try:
+                registration.check(float(sim.data["grid"]["res_m"]), f"step {k} of {sim.path}")
+            except ValueError:
+                out.unlink()
+                raise
+            summary = {**result.summary(), "registration_to_truth": registration.to_dict()}
+            write_text_atomic(folder / REGISTRATION, json.dumps(summary, indent=1))
+            log(f"step {k}: {json.dumps(summary)}")
+        registered[k] = out
+    return registered
+
+
+def survey_simulation(
+    seed: int = 0, steps: int | None = None, slides: bool = True
+) -> SimulationOptions:
+    """Simulation options of a dataset's surveys: video with DJI SRT, RTK GNSS. The
+    georeferencing error is removed by the registration to the truth anyway (as the paper
+    georeferenced by hand); RTK keeps it small to begin with."""
+    from worker.simulator import SimulationOptions
+
+    return SimulationOptions(seed=seed, steps=steps, slides=slides, survey="video", gnss="rtk")
+
+
+def reconstructed_dataset(
+    out_dir: Path,
+    scenario: str,
+    simulation: SimulationOptions | None = None,
+    options: ReconstructionOptions | None = None,
+    log: Callable[[str], None] = print,
+) -> Path:
+    """Simulate `scenario` (`simulation`, default `survey_simulation()`), reconstruct
+    every step's survey, and write the detection dataset `out_dir/dataset.json` (pairs
+    Step1 -> Stepk) on those DSMs. With `slides=False` it is a no-change dataset."""
+    from worker.pipeline.cnn.simdata import dataset_from_simulation
+    from worker.simulator import simulate_scenario
+
+    simulation = simulation or survey_simulation()
+    out = Path(out_dir)
+    sim_manifest = out / "simulation" / "manifest.json"
+    if not sim_manifest.exists():
+        log(f"simulating {scenario} (seed {simulation.seed}) with video surveys ...")
+        simulate_scenario(scenario, out / "simulation", simulation)
+    registered = reconstruct_simulation(sim_manifest, out / "reconstruction", options, log)
+    name = f"{scenario}-seed{simulation.seed}" + ("" if simulation.slides else "-no-change")
+    return dataset_from_simulation(sim_manifest, out, reconstructed=registered, name=name)
+
+
+def registration_summaries(work_dir: Path) -> dict[str, Any]:
+    """The per-step `registration.json` files under a reconstruction work dir."""
+    return {
+        p.parent.name: json.loads(p.read_text())
+        for p in sorted(Path(work_dir).glob(f"*/{REGISTRATION}"))
+    }
+
+
+def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> Path:
+    """The training data of the shipped SlideNet, rebuilt from the simulator (seeded);
+    returns the combined manifest `training-set.json`:
+
+    - paper-mounds seed 0, every step reconstructed (its test region is held out at
+      training);
+    - no-change surveys (vegetation growth and nuisance only) of paper-mounds and of the
+      hillslope, seed 2, reconstructed;
+    - hillslope pairs with 5 random slides each (seeds 3 and 4), which the simulator
+      makes as DSMs only (it flies the scenarios' own slides, which are test data):
+      truth DSMs degraded by recon_noise, the one interim part.
+    """
+    from worker.pipeline.cnn.simdata import combine_datasets, write_random_slides_dataset
+
+    out = Path(out_dir)
+    parts = []
+    for scenario, seed, slides in (
+        ("paper-mounds", 0, True),
+        ("paper-mounds", 2, False),
+        ("hillslope", 2, False),
+    ):
+        folder = out / (f"{scenario}-seed{seed}" + ("" if slides else "-no-change"))
+        manifest = folder / "dataset.json"
+        if not manifest.exists():
+            simulation = survey_simulation(seed, None if slides else 2, slides)
+            reconstructed_dataset(folder, scenario, simulation, log=log)
+        parts.append(manifest)
+    for seed in (3, 4):
+        manifest = out / f"hillslope-seed{seed}-random-slides" / "dataset.json"
+        if not manifest.exists():
+            write_random_slides_dataset(manifest.parent, "hillslope", seed, 5)
+        parts.append(manifest)
+    return combine_datasets(
+        out / "training-set.json",
+        "paper-mounds-seed0+no-change+hillslope-random-slides",
+        parts,
+    )
