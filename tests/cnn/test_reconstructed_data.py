@@ -3,7 +3,7 @@
 `register_to_truth` is checked on hand-made rasters (a known shift on another grid);
 `reconstructed_dataset` end to end on a short simulation of the paper's field: two steps,
 each survey video reconstructed by the SLAM pipeline, registered onto the truth grid, the
-simulator's masks as labels. A no-change simulation has empty masks.
+simulator's masks as labels.
 """
 
 import dataclasses
@@ -24,7 +24,6 @@ from worker.pipeline.cnn.reconstructed_data import (
     survey_simulation,
 )
 from worker.pipeline.raster_io import read_elevation, write_geotiff
-from worker.simulator import SimulationOptions, simulate_scenario
 
 CRS = "EPSG:32654"
 
@@ -132,16 +131,3 @@ def test_reconstructed_dataset_is_not_redone(short_dataset: Path):
     again = reconstructed_dataset(short_dataset.parent, "paper-mounds", simulation)
     assert again == short_dataset
     assert [p.stat().st_mtime_ns for p in registered] == stamps
-
-
-def test_no_change_simulation_has_no_landslide_and_only_nuisance(tmp_path: Path):
-    options = SimulationOptions(seed=5, steps=2, slides=False, survey="none", write_ortho=False)
-    sim = simulate_scenario("paper-mounds", tmp_path / "sim", options)
-    assert sim.step(2)["events"] == []
-    mask, _ = read_elevation(sim.truth(2, "mask_since_step1"))
-    assert np.nansum(mask == 1) + np.nansum(mask == 2) == 0
-    before, _ = read_elevation(sim.truth(1))
-    after, _ = read_elevation(sim.truth(2))
-    change = np.abs(after - before)
-    # Lawn growth, wind-blown sand and footprints: centimetres, nothing like a slide.
-    assert np.nanpercentile(change, 99.9) < 0.1

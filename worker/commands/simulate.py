@@ -71,6 +71,13 @@ EXIT_INPUT_ERROR = 2
 )
 @click.option("--flights-per-step", type=click.IntRange(1, 10), default=1, show_default=True)
 @click.option(
+    "--random-slides",
+    type=click.IntRange(0, 20),
+    default=0,
+    show_default=True,
+    help="hillslope: this many random slides instead of the scenario's own (training data).",
+)
+@click.option(
     "--slides/--no-slides",
     default=True,
     show_default=True,
@@ -119,6 +126,7 @@ def simulate_command(
     altitude_m: float | None,
     speed_m_s: float | None,
     flights_per_step: int,
+    random_slides: int,
     slides: bool,
     gnss: str,
     log_time_offset_s: float,
@@ -141,6 +149,7 @@ def simulate_command(
         speed_m_s=speed_m_s,
         flights_per_step=flights_per_step,
         slides=slides,
+        random_slides=random_slides,
         gnss=gnss,
         log_time_offset_s=log_time_offset_s,
         csv_units=csv_units,

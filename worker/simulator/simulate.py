@@ -24,7 +24,7 @@ import numpy as np
 
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.simulator.camera import CameraModel
-from worker.simulator.evolution import MASK_CLASSES, advance
+from worker.simulator.evolution import MASK_CLASSES, StepChange, advance
 from worker.simulator.flight_log import LogRecord, SrtOptions, write_airdata_csv, write_dji_srt
 from worker.simulator.flight_plan import Flight, build_flight
 from worker.simulator.frames import FramePool, RenderRun, default_workers
@@ -36,10 +36,12 @@ from worker.simulator.gnss import (
     simulate_gnss,
 )
 from worker.simulator.image_set import ImageMeta, write_dji_jpeg
+from worker.simulator.landslide import SlideSpec
 from worker.simulator.manifest import FORMAT, Manifest
+from worker.simulator.random_slides import random_hillslope_slides
 from worker.simulator.registration import registration_patterns, shift_dsm
 from worker.simulator.render import RenderOptions
-from worker.simulator.scenario import get_scenario
+from worker.simulator.scenario import ScenarioSpec, get_scenario
 from worker.simulator.terrain import Scene
 from worker.simulator.texture import (
     Exposure,
@@ -81,6 +83,9 @@ class SimulationOptions:
     slides: bool = True
     """False: the steps differ by the scenario's nuisance only (vegetation growth, small
     surface changes): surveys of a slope where nothing slid, for false-alarm checks."""
+    random_slides: int = 0
+    """hillslope: this many random slides between Step1 and Step2 instead of the
+    scenario's own, which are test data (random_slides.py): training data."""
     gnss: str = "standalone"
     log_time_offset_s: float = 0.0
     """The logged states in the CSV are those of `offset` seconds earlier than the
@@ -261,13 +266,7 @@ def _simulate(
             "events": [],
         }
         if k > 1:
-            scene, change = advance(
-                scene,
-                spec.slides(k, n_steps) if opts.slides else [],
-                spec.nuisance,
-                rng_for(opts.seed, "step", k),
-                dsm_before=dsm,
-            )
+            scene, change = _advance_step(spec, scene, dsm, k, n_steps, opts)
             dsm, canopy = scene.compose()
             mask_cum = np.where(change.mask > 0, change.mask, mask_cum).astype(np.uint8)
             dem = scene.dem()
@@ -491,6 +490,43 @@ def _simulate(
     data["platform"] = {"python": platform.python_version(), "machine": platform.machine()}
     manifest.save()
     return manifest
+
+
+def _advance_step(
+    spec: ScenarioSpec,
+    scene: Scene,
+    dsm: np.ndarray,
+    k: int,
+    n_steps: int,
+    opts: SimulationOptions,
+) -> tuple[Scene, StepChange]:
+    """Step k from step k-1: its slides, then the nuisance. A random slide that no longer
+    fits once the others moved the ground is left out (the scenario's own always fit)."""
+    slides = _step_slides(spec, scene, k, n_steps, opts)
+    while True:
+        try:
+            return advance(
+                scene, slides, spec.nuisance, rng_for(opts.seed, "step", k), dsm_before=dsm
+            )
+        except ValueError as exc:
+            misfits = [s for s in slides if opts.random_slides and repr(s.name) in str(exc)]
+            if not misfits:
+                raise
+            slides = [s for s in slides if s not in misfits]
+
+
+def _step_slides(
+    spec: ScenarioSpec, scene: Scene, k: int, n_steps: int, opts: SimulationOptions
+) -> list[SlideSpec]:
+    """The slides between step k-1 and step k."""
+    if not opts.slides:
+        return []
+    if opts.random_slides:
+        if spec.name != "hillslope":
+            raise ValueError("random slides are defined for the hillslope scenario only")
+        rng = rng_for(opts.seed, "random-slides")
+        return random_hillslope_slides(scene, rng, opts.random_slides) if k == 2 else []
+    return spec.slides(k, n_steps)
 
 
 def _rel(path: Path, root: Path) -> str:

@@ -144,14 +144,21 @@ def reconstruct_simulation(
 
 
 def survey_simulation(
-    seed: int = 0, steps: int | None = None, slides: bool = True
+    seed: int = 0, steps: int | None = None, slides: bool = True, random_slides: int = 0
 ) -> SimulationOptions:
     """Simulation options of a dataset's surveys: video with DJI SRT, RTK GNSS. The
     georeferencing error is removed by the registration to the truth anyway (as the paper
     georeferenced by hand); RTK keeps it small to begin with."""
     from worker.simulator import SimulationOptions
 
-    return SimulationOptions(seed=seed, steps=steps, slides=slides, survey="video", gnss="rtk")
+    return SimulationOptions(
+        seed=seed,
+        steps=steps,
+        slides=slides,
+        random_slides=random_slides,
+        survey="video",
+        gnss="rtk",
+    )
 
 
 def reconstructed_dataset(
@@ -174,7 +181,11 @@ def reconstructed_dataset(
         log(f"simulating {scenario} (seed {simulation.seed}) with video surveys ...")
         simulate_scenario(scenario, out / "simulation", simulation)
     registered = reconstruct_simulation(sim_manifest, out / "reconstruction", options, log)
-    name = f"{scenario}-seed{simulation.seed}" + ("" if simulation.slides else "-no-change")
+    name = f"{scenario}-seed{simulation.seed}" + (
+        "-random-slides"
+        if simulation.random_slides
+        else ("" if simulation.slides else "-no-change")
+    )
     return dataset_from_simulation(sim_manifest, out, reconstructed=registered, name=name)
 
 
@@ -187,36 +198,31 @@ def registration_summaries(work_dir: Path) -> dict[str, Any]:
 
 
 def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> Path:
-    """The training data of the shipped SlideNet, rebuilt from the simulator (seeded);
-    returns the combined manifest `training-set.json`:
+    """The training data of the shipped SlideNet, rebuilt from the simulator (seeded),
+    every survey reconstructed; returns the combined manifest `training-set.json`:
 
     - paper-mounds seed 0, every step reconstructed (its test region is held out at
       training);
     - no-change surveys (vegetation growth and nuisance only) of paper-mounds and of the
       hillslope, seed 2, reconstructed;
-    - hillslope pairs with 5 random slides each (seeds 3 and 4), which the simulator
-      makes as DSMs only (it flies the scenarios' own slides, which are test data):
-      truth DSMs degraded by recon_noise, the one interim part.
+    - hillslope surveys before and after 5 random slides (seeds 3 and 4), placed away from
+      the scenario's own slides, which are test data (worker/simulator/random_slides.py),
+      reconstructed.
     """
-    from worker.pipeline.cnn.simdata import combine_datasets, write_random_slides_dataset
+    from worker.pipeline.cnn.simdata import combine_datasets
 
     out = Path(out_dir)
     parts = []
-    for scenario, seed, slides in (
-        ("paper-mounds", 0, True),
-        ("paper-mounds", 2, False),
-        ("hillslope", 2, False),
+    for folder_name, scenario, simulation in (
+        ("paper-mounds-seed0", "paper-mounds", survey_simulation(0)),
+        ("paper-mounds-seed2-no-change", "paper-mounds", survey_simulation(2, 2, slides=False)),
+        ("hillslope-seed2-no-change", "hillslope", survey_simulation(2, 2, slides=False)),
+        ("hillslope-seed3-random-slides", "hillslope", survey_simulation(3, 2, random_slides=5)),
+        ("hillslope-seed4-random-slides", "hillslope", survey_simulation(4, 2, random_slides=5)),
     ):
-        folder = out / (f"{scenario}-seed{seed}" + ("" if slides else "-no-change"))
-        manifest = folder / "dataset.json"
+        manifest = out / folder_name / "dataset.json"
         if not manifest.exists():
-            simulation = survey_simulation(seed, None if slides else 2, slides)
-            reconstructed_dataset(folder, scenario, simulation, log=log)
-        parts.append(manifest)
-    for seed in (3, 4):
-        manifest = out / f"hillslope-seed{seed}-random-slides" / "dataset.json"
-        if not manifest.exists():
-            write_random_slides_dataset(manifest.parent, "hillslope", seed, 5)
+            reconstructed_dataset(manifest.parent, scenario, simulation, log=log)
         parts.append(manifest)
     return combine_datasets(
         out / "training-set.json",

@@ -223,23 +223,17 @@ def no_change_pair(
     return pre, post, scene.grid.transform(frame), frame.crs, px
 
 
-# Where random training slides may be placed on the hillslope (local x, metres): away
-# from the scenario's own slides (x = 25 main, x = -95 slump), which are test data.
-HILLSLOPE_TRAINING_X = ((-195.0, -150.0), (85.0, 190.0))
-
-
 def random_slides_pair(scenario: str, seed: int, n_slides: int = 5) -> tuple:
     """Training slides that are not the scenario's: `n_slides` random slides (random
     place, size, depth, runout) on a fresh realisation of the scenario's terrain, with its
-    nuisance. Hillslope only: toes in HILLSLOPE_TRAINING_X, 40-200 m above the stream,
-    moving downslope; trees on moving ground fall, as in the scenario. Returns
+    nuisance. Hillslope only (worker/simulator/random_slides.py); trees on moving ground
+    fall, as in the scenario. Returns
     (pre, post, mask, transform, crs, px), both DSMs degraded.
     """
     from worker.simulator.evolution import advance
     from worker.simulator.georef import SceneFrame
-    from worker.simulator.landslide import SlideSpec, apply_slide
+    from worker.simulator.random_slides import random_hillslope_slides
     from worker.simulator.scenario import get_scenario
-    from worker.simulator.terrain import stream_y
 
     if scenario != "hillslope":
         raise ValueError("random training slides are defined for the hillslope only")
@@ -248,33 +242,7 @@ def random_slides_pair(scenario: str, seed: int, n_slides: int = 5) -> tuple:
     scene = spec.build(np.random.default_rng(seed))
     frame = SceneFrame.at_lonlat(spec.lon, spec.lat, spec.crs)
     before, _ = scene.compose()
-    slides: list[SlideSpec] = []
-    tries = 0
-    while len(slides) < n_slides and tries < 200:
-        tries += 1
-        lo, hi = HILLSLOPE_TRAINING_X[int(rng.integers(len(HILLSLOPE_TRAINING_X)))]
-        x = float(rng.uniform(lo, hi))
-        length = float(rng.uniform(12.0, 55.0))
-        candidate = SlideSpec(
-            name=f"train-{len(slides) + 1}",
-            label="random training slide",
-            toe_xy=(x, float(stream_y(x)) + float(rng.uniform(40.0, 200.0))),
-            azimuth_deg=float(rng.uniform(165.0, 195.0)),
-            length_m=length,
-            width_m=float(rng.uniform(0.5, 1.0)) * length,
-            failure_angle_deg=float(rng.uniform(18.0, 27.0)),
-            head_angle_deg=float(rng.uniform(45.0, 55.0)),
-            flank_angle_deg=float(rng.uniform(38.0, 45.0)),
-            runout_m=float(rng.uniform(0.3, 1.2)) * length,
-            deposit_angle_deg=float(rng.uniform(5.0, 14.0)),
-            deposit_spread=float(rng.uniform(0.6, 0.8)),
-            roughness=0.05,
-        )
-        try:
-            apply_slide(scene.ground, scene.grid, candidate, np.random.default_rng(0), scene.floor)
-        except ValueError:
-            continue
-        slides.append(candidate)
+    slides = random_hillslope_slides(scene, rng, n_slides)
     while True:
         try:
             scene, change = advance(scene, slides, spec.nuisance, rng, dsm_before=before)
