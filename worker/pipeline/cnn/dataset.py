@@ -97,6 +97,7 @@ class DatasetManifest:
             "name": self.name,
             "interim": self.interim,
             "interim_parts": self.raw.get("interim_parts", []),
+            "augmentation_parts": self.raw.get("augmentation_parts", []),
             "dsm_source": self.dsm_source,
             "description": self.description,
             "pairs": [p.id for p in self.pairs],

@@ -207,9 +207,18 @@ def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> P
       hillslope, seed 2, reconstructed;
     - hillslope surveys before and after 5 random slides (seeds 3 and 4), placed away from
       the scenario's own slides, which are test data (worker/simulator/random_slides.py),
-      reconstructed.
+      reconstructed;
+    - augmentation, so that DSMs from other software (with other artefacts: outlier blobs,
+      blunders, grey levels) do not raise false alarms: the truth DSMs of paper-mounds
+      seed 6, of a paper-mounds no-change pair (seed 2) and of the hillslope random
+      slides (seeds 3 and 4) degraded by recon_noise.
     """
-    from worker.pipeline.cnn.simdata import combine_datasets
+    from worker.pipeline.cnn.simdata import (
+        combine_datasets,
+        simulate_dataset,
+        write_no_change_dataset,
+        write_random_slides_dataset,
+    )
 
     out = Path(out_dir)
     parts = []
@@ -224,8 +233,28 @@ def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> P
         if not manifest.exists():
             reconstructed_dataset(manifest.parent, scenario, simulation, log=log)
         parts.append(manifest)
+    augmentation = []
+    for folder_name, make in (
+        ("paper-mounds-seed6-interim", lambda f: simulate_dataset(f, "paper-mounds", 6)),
+        (
+            "paper-mounds-seed2-no-change-interim",
+            lambda f: write_no_change_dataset(f, "paper-mounds", 2),
+        ),
+        *(
+            (
+                f"hillslope-seed{seed}-random-slides-interim",
+                lambda f, seed=seed: write_random_slides_dataset(f, "hillslope", seed, 5),
+            )
+            for seed in (3, 4)
+        ),
+    ):
+        manifest = out / folder_name / "dataset.json"
+        if not manifest.exists():
+            make(manifest.parent)
+        augmentation.append(manifest)
     return combine_datasets(
         out / "training-set.json",
         "paper-mounds-seed0+no-change+hillslope-random-slides",
         parts,
+        augmentation,
     )

@@ -179,6 +179,13 @@ def model_card_markdown(card: ModelCard) -> str:
         f"{data.get('name', '?')}: {data.get('description', '')}",
         f"DSM source: {data.get('dsm_source', '?')}.",
     ]
+    if data.get("augmentation_parts"):
+        lines += [
+            "",
+            f"Augmentation: {', '.join(data['augmentation_parts'])}: simulator truth DSMs "
+            "degraded by a reconstruction-noise model, so that DSMs with other artefacts "
+            "than slidewatch's reconstruction do not raise false alarms.",
+        ]
     if card.interim and data.get("interim_parts"):
         lines += [
             "",

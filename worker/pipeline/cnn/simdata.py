@@ -343,11 +343,15 @@ def write_no_change_dataset(out_dir: Path, scenario: str, seed: int) -> Path:
     return manifest
 
 
-def combine_datasets(out_path: Path, name: str, manifests: list[Path]) -> Path:
+def combine_datasets(
+    out_path: Path, name: str, manifests: list[Path], augmentation: list[Path] | None = None
+) -> Path:
     """One manifest listing the pairs of several (ids prefixed by each dataset's name);
     regions and test come from the first. Paths stay relative, so keep the folders.
     `dsm_source` says where each part's DSMs come from; `interim` is true when any part
-    is interim, and `interim_parts` names those parts."""
+    is interim, and `interim_parts` names those parts. `augmentation` parts are added to
+    training on purpose (e.g. other kinds of DSM noise) and listed in
+    `augmentation_parts`; they do not make the set interim."""
     import json
     import os
 
@@ -355,10 +359,14 @@ def combine_datasets(out_path: Path, name: str, manifests: list[Path]) -> Path:
     combined: dict[str, Any] = {"name": name, "pairs": [], "regions": {}, "sources": []}
     by_source: dict[str, list[str]] = {}
     interim_parts: list[str] = []
-    for k, manifest in enumerate(manifests):
+    augmentation = list(augmentation or [])
+    augmentation_parts: list[str] = []
+    for k, manifest in enumerate([*manifests, *augmentation]):
         raw = json.loads(Path(manifest).read_text())
         rel = Path(os.path.relpath(Path(manifest).parent, out_path.parent))
-        if raw.get("interim"):
+        if k >= len(manifests):
+            augmentation_parts.append(raw["name"])
+        elif raw.get("interim"):
             interim_parts.append(raw["name"])
         by_source.setdefault(raw.get("dsm_source") or "unknown", []).append(raw["name"])
         combined["sources"].append(str(rel / Path(manifest).name))
@@ -379,6 +387,7 @@ def combine_datasets(out_path: Path, name: str, manifests: list[Path]) -> Path:
     )
     combined["interim"] = bool(interim_parts)
     combined["interim_parts"] = interim_parts
+    combined["augmentation_parts"] = augmentation_parts
     combined["description"] = "Pairs of: " + ", ".join(combined["sources"])
     write_manifest(out_path, combined)
     return out_path
