@@ -23,8 +23,13 @@ def test_shipped_weights_load_with_their_card():
     assert isinstance(loaded.model, SlideNet) and not loaded.model.training
     card = loaded.card
     assert (PACKAGE_WEIGHTS / card.weights_file).stat().st_size < 2_000_000
-    assert card.interim is True  # trained on degraded simulator truth, said so
-    assert card.data["interim"] is True and card.training["exclude"]["region"] == "mound-A"
+    # Trained on slidewatch's reconstructions of simulated flights, with the paper's
+    # test region held out; the noise-model pairs are named as augmentation.
+    assert card.interim is False and card.data["interim"] is False
+    assert card.data["dsm_source"].startswith("slidewatch reconstruction of the simulated")
+    assert card.data["augmentation_parts"] and not card.data["interim_parts"]
+    assert card.training["exclude"]["region"] == "mound-A"
+    assert 0 < card.decision["min_score"] < 1 and card.decision["min_score_calibration"]
     assert 0 < card.decision["pixel_threshold"] < 1
     assert [c.name for c in list_models(PACKAGE_WEIGHTS)] == [card.name]
     assert default_method() == "cnn"
