@@ -28,7 +28,8 @@ def test_models_lists_the_shipped_default(client: TestClient, auth: dict) -> Non
     assert model["name"] == "slidenet-default" and model["is_default"]
     assert model["location"] == "package" and model["kind"] == "slidenet"
     assert model["reference"] == f"slidenet-default@{model['version']}"
-    assert model["interim"] is True  # trained on stand-in DSMs, and says so
+    assert model["interim"] is False  # trained on reconstructed DSMs
+    assert model["card"]["data"]["dsm_source"].startswith("slidewatch reconstruction")
     assert 0 < model["card"]["decision"]["pixel_threshold"] < 1
     assert client.get("/api/v1/models", headers=auth).json() == listed  # registered once
 
