@@ -257,17 +257,18 @@ def test_blur_filter_and_keyframe_policy():
     assert not policy.is_keyframe(5, 0.9, 200)
 
 
-def test_frames_stage_drops_blurred_frames(tmp_path):
+def write_panning_video(path, blurred_frame: int | None = None) -> None:
+    """30 frames at 20 fps of 640 x 360 panning 10 px per frame over a texture; one frame
+    blurred if asked."""
     import av
 
-    path = tmp_path / "v.mp4"
     base = texture((400, 1400), 5)
     container = av.open(str(path), "w")
     stream = container.add_stream("libx264", rate=20)
     stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
     for i in range(30):
         img = base[20:380, 10 * i : 10 * i + 640]
-        if i == 15:
+        if i == blurred_frame:
             img = cv2.GaussianBlur(img, (0, 0), 5)
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="gray")
         for packet in stream.encode(frame):
@@ -275,6 +276,11 @@ def test_frames_stage_drops_blurred_frames(tmp_path):
     for packet in stream.encode():
         container.mux(packet)
     container.close()
+
+
+def test_frames_stage_drops_blurred_frames(tmp_path):
+    path = tmp_path / "v.mp4"
+    write_panning_video(path, blurred_frame=15)
     result = prepare_video_frames(path, tmp_path / "frames", FrameOptions(width=320, height=180))
     assert result.scan.kept.sum() == 29 and not result.scan.kept[15]
     moving = result.scan.motion_px_s[1:]
@@ -285,21 +291,8 @@ def test_frames_stage_drops_blurred_frames(tmp_path):
 
 
 def test_frames_stage_stores_only_the_tracked_frames(tmp_path):
-    import av
-
     path = tmp_path / "v.mp4"
-    base = texture((400, 1400), 5)
-    container = av.open(str(path), "w")
-    stream = container.add_stream("libx264", rate=20)
-    stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
-    for i in range(30):
-        image = np.ascontiguousarray(base[20:380, 10 * i : 10 * i + 640])
-        frame = av.VideoFrame.from_ndarray(image, format="gray")
-        for packet in stream.encode(frame):
-            container.mux(packet)
-    for packet in stream.encode():
-        container.mux(packet)
-    container.close()
+    write_panning_video(path)
     # 5 px per frame at half size: a 12 px step takes every third frame, and the last.
     result = prepare_video_frames(
         path, tmp_path / "frames", FrameOptions(width=320, height=180), track_step_px=12.0

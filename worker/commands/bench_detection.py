@@ -17,6 +17,8 @@ from pathlib import Path
 
 import click
 
+from worker.commands.options import dsm_source_option
+
 
 @click.command("detection")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), required=True)
@@ -36,13 +38,7 @@ import click
     help="Default: both.",
 )
 @click.option("--paper-epochs", type=int, default=100, show_default=True)
-@click.option(
-    "--dsm-source",
-    type=click.Choice(["reconstruction", "recon-noise"]),
-    default="reconstruction",
-    show_default=True,
-    help="DSMs reconstructed from rendered survey video, or degraded truth (quick, interim).",
-)
+@dsm_source_option
 @click.option("--no-speed", is_flag=True, help="Skip the inference-speed measurement.")
 @click.option(
     "--threads", type=int, default=2, show_default=True, help="Torch threads for the tables."

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import click
 
+from worker.commands.options import dsm_source_option
 from worker.pipeline.cnn.trainer import MODEL_KINDS
 from worker.pipeline.errors import InputError
 
@@ -44,13 +45,7 @@ EXIT_INPUT_ERROR = 2
     default=None,
     help="Simulate this scenario and make its dataset (in --data-dir).",
 )
-@click.option(
-    "--dsm-source",
-    type=click.Choice(["reconstruction", "recon-noise"]),
-    default="reconstruction",
-    show_default=True,
-    help="--simulate: DSMs reconstructed from rendered video, or degraded truth (interim).",
-)
+@dsm_source_option
 @click.option(
     "--data-dir", type=click.Path(path_type=Path), default=None, help="Where --simulate writes."
 )
