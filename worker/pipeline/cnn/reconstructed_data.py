@@ -17,11 +17,14 @@ so an interrupted run resumes where it stopped.
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.coregister import CoregisterOptions, coregister
@@ -73,8 +76,6 @@ class RegistrationToTruth:
 def register_to_truth(dsm: Path, truth: Path, out: Path) -> RegistrationToTruth:
     """Resample `dsm` onto the grid of `truth` and co-register it there (the paper's
     manual georeferencing); write the result to `out` (GeoTIFF on the truth grid)."""
-    import numpy as np
-
     source, profile = read_elevation(dsm)
     _, truth_profile = read_elevation(truth)
     shape = (int(truth_profile["height"]), int(truth_profile["width"]))
@@ -105,10 +106,11 @@ def reconstruct_simulation(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     log: Callable[[str], None] = print,
-    survey_number: int = 0,
 ) -> dict[int, Path]:
-    """Reconstruct the video survey of every step of a simulation and register each DSM
-    onto its truth. Returns {step index: registered DSM}; cached per step."""
+    """Reconstruct the (first) video survey of every step of a simulation and register
+    each DSM onto its truth. Returns {step index: registered DSM}; cached per step: the
+    registered DSM is moved into place last, after its figures, so a step that has it is
+    complete."""
     from worker.simulator.manifest import Manifest
 
     sim = Manifest.load(Path(sim_manifest))
@@ -116,10 +118,10 @@ def reconstruct_simulation(
     registered: dict[int, Path] = {}
     for step in sim.steps:
         k = int(step["index"])
-        folder = work / f"step{k}" if survey_number == 0 else work / f"step{k}-{survey_number}"
+        folder = work / f"step{k}"
         out = folder / REGISTERED
         if not out.exists():
-            survey = sim.survey(k, survey_number)
+            survey = sim.survey(k)
             if not survey.get("video") or not survey.get("srt"):
                 raise ValueError(f"step {k} of {sim.path} has no video survey with an SRT log")
             log(f"reconstructing step {k} ({survey['video']}) ...")
@@ -130,14 +132,16 @@ def reconstruct_simulation(
                 folder / "reconstruction",
                 options or ReconstructionOptions(method="slam"),
             )
-            registration = register_to_truth(result.dsm_path, sim.truth(k), out)
+            pending = folder / f"pending-{REGISTERED}"
+            registration = register_to_truth(result.dsm_path, sim.truth(k), pending)
             try:
                 registration.check(float(sim.data["grid"]["res_m"]), f"step {k} of {sim.path}")
             except ValueError:
-                out.unlink()
+                pending.unlink()
                 raise
             summary = {**result.summary(), "registration_to_truth": registration.to_dict()}
             write_text_atomic(folder / REGISTRATION, json.dumps(summary, indent=1))
+            os.replace(pending, out)
             log(f"step {k}: {json.dumps(summary)}")
         registered[k] = out
     return registered
