@@ -238,12 +238,14 @@ def run() -> None:
 
 def _register_pipeline_commands() -> None:
     from worker.commands.bench import bench
+    from worker.commands.calibrate import calibrate
     from worker.commands.detect import detect
     from worker.commands.reconstruct import reconstruct
     from worker.commands.simulate import simulate_command
     from worker.commands.train import train
 
     main.add_command(bench)
+    main.add_command(calibrate)
     main.add_command(detect)
     main.add_command(reconstruct)
     main.add_command(simulate_command)

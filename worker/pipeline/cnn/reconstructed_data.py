@@ -193,14 +193,6 @@ def reconstructed_dataset(
     return dataset_from_simulation(sim_manifest, out, reconstructed=registered, name=name)
 
 
-def registration_summaries(work_dir: Path) -> dict[str, Any]:
-    """The per-step `registration.json` files under a reconstruction work dir."""
-    return {
-        p.parent.name: json.loads(p.read_text())
-        for p in sorted(Path(work_dir).glob(f"*/{REGISTRATION}"))
-    }
-
-
 def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> Path:
     """The training data of the shipped SlideNet, rebuilt from the simulator (seeded),
     every survey reconstructed; returns the combined manifest `training-set.json`:
