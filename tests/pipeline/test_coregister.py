@@ -102,3 +102,26 @@ def test_grids_must_match(tmp_path):
     with pytest.raises(InputError, match="same grid"):
         coregister(tmp_path / "pre.tif", tmp_path / "post.tif", tmp_path / "out.tif")
     assert not (tmp_path / "out.tif").exists()
+
+
+def test_correct_points_moves_post_features_onto_pre(tmp_path):
+    # Checkpoints as the post survey placed them (shifted, raised and tilted) must land
+    # where pre has them once the estimated correction is applied.
+    shift, tilt = (2.4, -1.7, 0.6), (1.5, -2.5)
+    pair = make_dsm_pair((300, 300), PIXEL_M, shift, slide=False, seed=9, tilt_m_per_km=tilt)
+    _, result = _coregister(tmp_path, pair)
+    assert result.tilt_pivot_east_m == pytest.approx(500_150.0)
+    assert result.tilt_pivot_north_m == pytest.approx(5_099_850.0)
+    rows, cols = np.array([30, 150, 260]), np.array([40, 150, 270])
+    x, y = pair.transform * (cols + 0.5, rows + 0.5)
+    on_pre = np.column_stack([x, y, pair.pre[rows, cols]])
+    moved_x, moved_y = x + shift[0], y + shift[1]
+    u, v = moved_x - result.tilt_pivot_east_m, moved_y - result.tilt_pivot_north_m
+    on_post = np.column_stack(
+        [moved_x, moved_y, on_pre[:, 2] + shift[2] + (tilt[0] * u + tilt[1] * v) / 1000.0]
+    )
+    corrected = result.correct_points(on_post)
+    assert np.abs(corrected[:, :2] - on_pre[:, :2]).max() < 0.1 * PIXEL_M
+    assert np.abs(corrected[:, 2] - on_pre[:, 2]).max() < 0.02
+    raw_error = np.abs(on_post - on_pre).max(axis=0)
+    assert raw_error[0] > 2.0 and raw_error[2] > 0.5

