@@ -97,6 +97,13 @@ class Settings(BaseSettings):
     upload_expiry_hours: float = Field(
         default=72.0, description="An unfinished resumable upload is removed after this long."
     )
+    upload_stall_timeout_s: float = Field(
+        default=600.0,
+        gt=0,
+        description="A survey processed while its video is still uploading fails when no "
+        "byte of the video arrives for this long (the upload can be resumed and the job "
+        "retried).",
+    )
     seed_demo: bool = Field(
         default=True,
         description="On the first start of `slidewatch run`, create a demo site with a "

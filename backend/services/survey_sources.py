@@ -4,6 +4,11 @@ A source survey is created first (status `receiving`), its files are added one b
 each checked as it arrives (the video decodes, the log parses, the photo is geotagged),
 and `submit_reconstruction` queues the job that turns them into a DSM (worker/jobs/
 reconstruction.py). A file that fails its check is removed with no row left behind.
+
+A video survey may be submitted while its video is still arriving through a resumable
+upload (the log must be there): the job reads the video as it comes, and the upload,
+marked `streamed`, is still handed over to the survey when it completes. Should it fail
+its checks then, the job fails with the upload's reason.
 """
 
 import re
@@ -25,7 +30,10 @@ from backend.db.models import (
     SurveyFile,
     SurveyKind,
     SurveyStatus,
+    Upload,
+    UploadState,
 )
+from backend.services.arriving_uploads import arriving_video
 from backend.services.jobs import QueueUnavailable, new_job, start_job
 from backend.storage import LocalStorage, SavedFile
 from worker.jobs.reconstruction import ReconstructionJob
@@ -91,8 +99,11 @@ def check_file_name(name: str, role: str) -> str:
     return name
 
 
-def _check_role(survey: Survey, role: str, name: str) -> None:
-    if survey.status != SurveyStatus.receiving:
+def _check_role(survey: Survey, role: str, name: str, streamed: bool = False) -> None:
+    # A streamed video is the one the job is reading: it is still taken when processing
+    # has started (or failed waiting for it, so that a retry finds it).
+    open_to = (SurveyStatus.receiving, SurveyStatus.processing, SurveyStatus.failed)
+    if survey.status not in (open_to if streamed else open_to[:1]):
         raise SourceRejected(
             f"survey {survey.id} is {survey.status.value}; files can only be added before "
             "processing starts"
@@ -172,10 +183,12 @@ def add_survey_file(
     role: str,
     filename: str,
     source: Path,
+    streamed: bool = False,
 ) -> SurveyFile:
-    """Move a complete file (e.g. a finished resumable upload) into the survey."""
+    """Move a complete file (e.g. a finished resumable upload) into the survey; a
+    `streamed` upload (see the module doc) is taken while the survey is processing."""
     name = check_file_name(filename, role)
-    _check_role(survey, role, name)
+    _check_role(survey, role, name, streamed)
     saved = storage.adopt_file(Path(source), _folder(survey), Path(name).suffix.lower())
     return _record(session, storage, survey, role, name, saved)
 
@@ -212,9 +225,12 @@ def remove_survey_file(
     storage.delete(path)
 
 
-def missing_files(survey: Survey) -> str | None:
-    """What the survey still needs before it can be processed, in plain words."""
+def missing_files(survey: Survey, arriving: Upload | None = None) -> str | None:
+    """What the survey still needs before it can be processed, in plain words (a video
+    still `arriving` through a resumable upload counts as there)."""
     roles = [f.role for f in survey.files]
+    if arriving is not None and arriving.state == UploadState.receiving:
+        roles.append("video")
     if survey.kind == SurveyKind.video:
         needed = [r for r in ("video", "log") if r not in roles]
         if needed:
@@ -229,15 +245,19 @@ def missing_files(survey: Survey) -> str | None:
 
 
 def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> Job:
-    """Queue the job that reconstructs the survey's DSM from its files."""
+    """Queue the job that reconstructs the survey's DSM from its files (the video may
+    still be arriving: see the module doc)."""
     if survey.status != SurveyStatus.receiving:
         raise SourceRejected(
             f"survey {survey.id} is {survey.status.value}; only a survey receiving files "
             "can be submitted (retry a failed job through its job instead)"
         )
-    missing = missing_files(survey)
+    arriving = arriving_video(session, survey)
+    missing = missing_files(survey, arriving)
     if missing:
         raise SourceRejected(missing)
+    if arriving is not None and arriving.state == UploadState.receiving:
+        arriving.details = {**arriving.details, "streamed": True}
     survey.status = SurveyStatus.processing
     survey.error = None
     job = new_job(

@@ -6,7 +6,8 @@ dropped connection or a reloaded page goes on where it stopped. When the last by
 the whole file's SHA-256 is checked against the one the client announced, and the file is
 handed over, at once and whole, to the service that makes it a survey (a DSM) or a
 survey's input (video, flight log, photo). Until then it lives as
-`uploads/{site_id}/{upload_id}.part` under storage and nowhere else.
+`uploads/{site_id}/{upload_id}.part` under storage and nowhere else; a video survey may
+be processed from that file while it grows (survey_sources.submit_reconstruction).
 
 Extensions: creation, termination, checksum (sha256, per request) and expiration.
 """
@@ -35,6 +36,7 @@ from starlette.concurrency import run_in_threadpool
 from backend.config import Settings
 from backend.db.models import Site, Survey, SurveyStatus, Upload, UploadState
 from backend.security import as_utc
+from backend.services.arriving_uploads import part_path, part_relative_path
 from backend.services.survey_sources import SourceRejected, add_survey_file, check_file_name
 from backend.services.surveys import create_dsm_survey_from_file
 from backend.storage import LocalStorage, file_digest
@@ -166,14 +168,6 @@ def check_upload_request(
         details |= {"survey_id": survey.id, "role": role}
     details["purpose"] = purpose
     return details
-
-
-def part_relative_path(upload: Upload) -> str:
-    return f"uploads/{upload.site_id}/{upload.id}.part"
-
-
-def part_path(storage: LocalStorage, upload: Upload) -> Path:
-    return storage.absolute(part_relative_path(upload))
 
 
 def current_offset(storage: LocalStorage, upload: Upload) -> int:
@@ -372,6 +366,7 @@ async def _hand_over(session: Session, storage: LocalStorage, upload: Upload, pa
             role=details["role"],
             filename=upload.filename,
             source=path,
+            streamed=bool(details.get("streamed")),
         )
         survey_id = survey.id
     upload.state = UploadState.complete

@@ -8,6 +8,7 @@ from pathlib import Path
 from playwright.sync_api import Page, Request, Route, expect
 
 from tests.e2e.conftest import USER, App, shot
+from tests.video_helpers import moov_before_mdat
 from worker.simulator.dsm_pair import DsmPairPaths
 
 JOB_TIMEOUT_MS = 180_000
@@ -256,3 +257,43 @@ def clip_right_edge(page: Page, pane: str) -> float:
     clip = page.locator(f".leaflet-{pane}-pane").evaluate("e => e.style.clip")
     numbers = [float(v) for v in re.findall(r"-?[\d.]+", clip)]
     return numbers[1]
+
+
+def test_a_video_survey_is_processed_while_it_uploads(
+    page: Page, app_server: App, simulated_mounds_survey
+) -> None:
+    """The camera's MP4 (index last) goes up index first, and the reconstruction is queued
+    as soon as the server knows the video's upload: its frames are decoded as they come."""
+    flight, _ = simulated_mounds_survey
+    camera_video = flight / "DJI_0001.MP4"
+    assert not moov_before_mdat(camera_video)
+    sign_in(page, app_server)
+    create_site(page, "South slope")
+    requests: list[str] = []
+
+    def log(request: Request) -> None:
+        if request.url.endswith("/process") or (
+            "/api/v1/uploads/" in request.url and request.method == "PATCH"
+        ):
+            requests.append("process" if request.url.endswith("/process") else "patch")
+
+    page.on("request", log)
+    page.get_by_label("Video + flight log").check()
+    page.get_by_label("Video (.mp4 or .mov)").set_input_files(str(camera_video))
+    page.get_by_label("Flight log (.srt or .csv)").set_input_files(str(flight / "DJI_0001.SRT"))
+    page.get_by_label("Survey name").fill("After the storm")
+    page.get_by_label(re.compile(r"^Flown at")).fill("2026-07-03T09:00")
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-status")).to_contain_text("being reconstructed", timeout=60_000)
+    job = page.locator(".job").first
+    expect(job).to_contain_text("Reconstruction of survey")
+    expect(job).to_have_class(re.compile("job-succeeded"), timeout=JOB_TIMEOUT_MS)
+    expect(job.locator(".stage-succeeded")).to_have_count(5)
+    # The log's requests, then the video's: the job was queued while the video went up.
+    process_at = requests.index("process")
+    assert requests.count("process") == 1 and 0 < process_at < len(requests) - 10, requests
+    stored = list((app_server.settings.storage_dir / "surveys").rglob("*.mp4"))
+    assert len(stored) == 1 and moov_before_mdat(stored[0])
+    assert stored[0].stat().st_size == camera_video.stat().st_size
+    expect(page.locator(".survey-list")).to_contain_text("After the storm")
+    shot(page, "video-survey-processed")

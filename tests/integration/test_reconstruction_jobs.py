@@ -4,6 +4,8 @@ Each of the five stages runs as its own Celery task on the real broker, and the 
 ends `ready` with a DSM product whose pixels match the simulator's truth in shape.
 """
 
+import hashlib
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -12,7 +14,10 @@ import pytest
 import rasterio
 
 from backend.config import Settings
+from tests.api.test_uploads import create, metadata, patch
 from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
+from tests.video_helpers import faststart_copy
+from worker.pipeline.ingest.video import VideoReader
 
 pytestmark = pytest.mark.integration
 
@@ -61,3 +66,126 @@ def test_video_survey_is_reconstructed_by_a_worker(
     assert heights.count() > 0.8 * heights.size
     relief = np.percentile(heights.compressed(), 99.5) - np.percentile(heights.compressed(), 1)
     assert 1.0 < relief < 2.2
+
+
+def test_video_is_processed_while_it_uploads_and_a_stalled_upload_resumes(
+    redis_postgres_settings: Settings,
+    start_worker: Callable[..., SlidewatchProcess],
+    simulated_mounds_survey,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The job starts on the first bytes of the video: ingest reads its header and frames
+    decodes as the rest comes. The upload stalls: the job fails saying so; the upload is
+    resumed, the job retried, and it ends with the survey's DSM."""
+    flight, _ = simulated_mounds_survey
+    monkeypatch.setenv("SLIDEWATCH_UPLOAD_STALL_TIMEOUT_S", "4")
+    client, auth = api_client(redis_postgres_settings)
+    start_worker(redis_postgres_settings)
+    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
+    sid = client.post(
+        f"/api/v1/sites/{site}/surveys/sources",
+        json={"kind": "video", "name": "step 1", "captured_at": "2026-07-01T09:00:00Z"},
+        headers=auth,
+    ).json()["id"]
+    log = flight / "flight-airdata.csv"
+    response = client.put(
+        f"/api/v1/sites/{site}/surveys/{sid}/files/{log.name}",
+        params={"role": "log"},
+        content=log.read_bytes(),
+        headers=auth,
+    )
+    assert response.status_code == 201, response.text
+    data = faststart_copy(flight / "DJI_0001.MP4", tmp_path / "DJI_0001.MP4").read_bytes()
+    meta = metadata(
+        site_id=str(site),
+        filename="DJI_0001.MP4",
+        purpose="survey_file",
+        survey_id=str(sid),
+        role="video",
+        sha256=hashlib.sha256(data).hexdigest(),
+    )
+    location = create(client, auth, len(data), meta).headers["Location"]
+    half = len(data) // 2
+    assert patch(client, auth, location, 0, data[:half]).status_code == 204
+    job_id = client.post(f"/api/v1/sites/{site}/surveys/{sid}/process", headers=auth).json()["id"]
+
+    def stage(job: dict, name: str) -> dict:
+        return next(s for s in job["stages"] if s["stage"] == name)
+
+    # Half the video is there: ingest is done and frames is decoding what arrived.
+    running = wait_for_job(
+        client, auth, site, job_id, lambda j: stage(j, "frames")["state"] == "running"
+    )
+    assert stage(running, "ingest")["state"] == "succeeded"
+    assert client.get(location, headers=auth).json()["offset"] == half
+    # No more bytes: after the stall timeout the job fails, saying where the upload stopped.
+    failed = wait_for_job(client, auth, site, job_id, lambda j: j["state"] == "failed")
+    assert f"DJI_0001.MP4: the upload stopped at {half} of {len(data)} bytes" in failed["error"]
+    # The user resumes the upload (it joins the failed survey), then retries the job.
+    assert patch(client, auth, location, half, data[half:]).status_code == 204
+    assert client.get(location, headers=auth).json()["state"] == "complete"
+    retried = client.post(f"/api/v1/sites/{site}/jobs/{job_id}/retry", headers=auth)
+    assert retried.status_code == 202, retried.text
+    done = wait_for_job(client, auth, site, job_id, lambda j: j["state"] in ("succeeded", "failed"))
+    assert done["state"] == "succeeded", done
+    assert [s["attempts"] for s in done["stages"]] == [1, 2, 1, 1, 1]
+    survey = client.get(f"/api/v1/sites/{site}/surveys/{sid}", headers=auth).json()
+    assert survey["status"] == "ready"
+    files = client.get(f"/api/v1/sites/{site}/surveys/{sid}/files", headers=auth).json()
+    assert sorted(f["role"] for f in files) == ["log", "video"]
+
+
+def test_a_video_arriving_in_pieces_is_reconstructed_as_it_comes(
+    redis_postgres_settings: Settings,
+    start_worker: Callable[..., SlidewatchProcess],
+    simulated_mounds_survey,
+    tmp_path: Path,
+) -> None:
+    """Pieces of the video arrive a second apart: the frames stage is under way before
+    the last one, and the job goes through with every stage once."""
+    flight, _ = simulated_mounds_survey
+    client, auth = api_client(redis_postgres_settings)
+    start_worker(redis_postgres_settings)
+    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
+    sid = client.post(
+        f"/api/v1/sites/{site}/surveys/sources",
+        json={"kind": "video", "name": "step 1", "captured_at": "2026-07-01T09:00:00Z"},
+        headers=auth,
+    ).json()["id"]
+    log = flight / "DJI_0001.SRT"
+    client.put(
+        f"/api/v1/sites/{site}/surveys/{sid}/files/{log.name}",
+        params={"role": "log"},
+        content=log.read_bytes(),
+        headers=auth,
+    ).raise_for_status()
+    data = faststart_copy(flight / "DJI_0001.MP4", tmp_path / "DJI_0001.MP4").read_bytes()
+    meta = metadata(
+        site_id=str(site),
+        filename="DJI_0001.MP4",
+        purpose="survey_file",
+        survey_id=str(sid),
+        role="video",
+        sha256=hashlib.sha256(data).hexdigest(),
+    )
+    location = create(client, auth, len(data), meta).headers["Location"]
+    pieces = 6
+    step = -(-len(data) // pieces)
+    assert patch(client, auth, location, 0, data[:step]).status_code == 204
+    job_id = client.post(f"/api/v1/sites/{site}/surveys/{sid}/process", headers=auth).json()["id"]
+    frames_running_before_last_piece = False
+    for offset in range(step, len(data), step):
+        time.sleep(1.0)
+        job = client.get(f"/api/v1/sites/{site}/jobs/{job_id}", headers=auth).json()
+        frames = next(s for s in job["stages"] if s["stage"] == "frames")
+        frames_running_before_last_piece |= frames["state"] == "running"
+        piece = data[offset : offset + step]
+        assert patch(client, auth, location, offset, piece).status_code == 204
+    assert frames_running_before_last_piece
+    done = wait_for_job(client, auth, site, job_id, lambda j: j["state"] in ("succeeded", "failed"))
+    assert done["state"] == "succeeded", done
+    assert all(s["attempts"] == 1 and s["progress"] == 1.0 for s in done["stages"])
+    frames = next(s for s in done["stages"] if s["stage"] == "frames")["result"]
+    every_frame = VideoReader(tmp_path / "DJI_0001.MP4").frames(size=(64, 36))
+    assert frames["frames"]["frames"] == sum(1 for _ in every_frame)  # nothing lost

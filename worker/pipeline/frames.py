@@ -36,6 +36,7 @@ import numpy as np
 
 from worker.pipeline.atomic import atomic_path
 from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.arriving import Arrival
 from worker.pipeline.ingest.video import VideoFrame, VideoReader
 from worker.pipeline.progress import ProgressFn, no_progress
 
@@ -213,16 +214,18 @@ def prepare_video_frames(
     progress: ProgressFn = no_progress,
     track_step_px: float = 0.0,
     track_max_gap_s: float = 0.5,
+    arrival: Arrival | None = None,
 ) -> FramesResult:
     """Decode, filter and store the frames for reconstruction (see the module doc).
 
     With `track_step_px` > 0 only the frames `tracking_frames` chooses with these
-    arguments are stored; with 0 every kept frame is."""
+    arguments are stored; with 0 every kept frame is. With `arrival`, the video is still
+    uploading: frames are decoded as its bytes arrive."""
     start = time.perf_counter()
     options = options or FrameOptions()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    reader = VideoReader(video_path)
+    reader = VideoReader(video_path, arrival)
     info = reader.info
     total = info.frames or 0
     blur = BlurFilter(options.blur_ratio, options.blur_window, options.min_sharpness)
@@ -354,11 +357,12 @@ def extract_still_frames(
     max_width: int = 2560,
     blur_ratio: float = 0.5,
     progress: ProgressFn = no_progress,
+    arrival: Arrival | None = None,
 ) -> StillFrames:
     """JPEG frames at `fps` (the sharpest of each interval), at most `max_width` wide."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    reader = VideoReader(video_path)
+    reader = VideoReader(video_path, arrival)
     info = reader.info
     width = min(max_width, info.width)
     height = round(info.height * width / info.width / 2) * 2

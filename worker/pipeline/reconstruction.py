@@ -28,12 +28,19 @@ JSON-friendly dict, also written as `<stage>.json`. Layout of `work_dir`:
 
 Methods: `slam` (default for video) and `sfm` (pycolmap, the paper's OpenDroneMap
 reference, and the only method for image sets); `auto` picks by input.
+
+A video still uploading (`ReconstructionInputs.video_bytes`, the length it will have) is
+processed as it arrives: ingest reads its header, frames decodes what has arrived and
+waits for the rest (worker/pipeline/ingest/arriving.py). The frames stage takes the
+video from the inputs it is given, else from ingest.json, so a finished upload may have
+been moved between the two.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +61,7 @@ from worker.pipeline.frames import (
 )
 from worker.pipeline.georef import offset_residual_fn, survey_epsg
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
+from worker.pipeline.ingest.arriving import Arrival
 from worker.pipeline.ingest.camera import CameraOverride, Intrinsics, resolve_intrinsics
 from worker.pipeline.ingest.flight_log import FlightLog, read_flight_log
 from worker.pipeline.ingest.images import read_image_set
@@ -92,9 +100,24 @@ class ReconstructionInputs:
     video: str | None = None
     log: str | None = None
     images: str | None = None
+    # The video is still uploading and will have this many bytes (None: it is complete).
+    video_bytes: int | None = None
+    video_stall_timeout_s: float = 600.0  # give up when no byte arrives for this long
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def paths(self) -> dict[str, str | None]:
+        """The input paths, absolute (links are kept: their names are the user's)."""
+        return {
+            k: os.path.abspath(v) if v else None
+            for k, v in (("video", self.video), ("log", self.log), ("images", self.images))
+        }
+
+    def video_arrival(self) -> Arrival | None:
+        if self.video_bytes is None:
+            return None
+        return Arrival(self.video_bytes, self.video_stall_timeout_s)
 
 
 @dataclass
@@ -200,7 +223,7 @@ def ingest(
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
-    given = {k: str(Path(v).resolve()) if v else None for k, v in inputs.to_dict().items()}
+    given = inputs.paths()
     if given["images"] and (given["video"] or given["log"]):
         raise InputError("give either a video with its flight log, or an image set")
     if not given["images"] and not (given["video"] and given["log"]):
@@ -225,7 +248,7 @@ def ingest(
         out["time_offset_prior"] = TimeOffset(0.0, 0.0, "image_exif", "prior").to_dict()
         out["warnings"] += image_set.warnings
     else:
-        video = probe_video(given["video"])
+        video = probe_video(given["video"], inputs.video_arrival())
         progress(0.3)
         log = read_flight_log(given["log"], angle_unit=options.angle_unit)
         focal35 = log.meta.get("focal_len_35mm")
@@ -272,8 +295,10 @@ def frames(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
+    inputs: ReconstructionInputs | None = None,
 ) -> dict[str, Any]:
-    """Decode and filter the video; estimate the time offset from image motion."""
+    """Decode and filter the video (the one in `inputs` when given, else ingest's); estimate
+    the time offset from image motion."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
@@ -294,7 +319,8 @@ def frames(
         else:
             out["note"] = "image set: the images are used as they are"
     else:
-        video = ing["inputs"]["video"]
+        video = inputs.paths()["video"] if inputs and inputs.video else ing["inputs"]["video"]
+        arrival = inputs.video_arrival() if inputs and inputs.video else None
         weight = 0.6 if method == "sfm" else 1.0
         slam = options.slam
         result = prepare_video_frames(
@@ -305,6 +331,7 @@ def frames(
             # slam tracks a subset of the frames: store only those (sfm reads stills).
             track_step_px=slam.track_step_px if method == "slam" else 0.0,
             track_max_gap_s=slam.track_max_gap_s,
+            arrival=arrival,
         )
         out["frames"] = result.to_dict()
         prior = TimeOffset(**{**ing["time_offset_prior"], "warnings": []})
@@ -330,6 +357,7 @@ def frames(
                 fps=options.sfm.fps,
                 max_width=options.sfm.max_width,
                 progress=lambda f: progress(0.6 + 0.4 * f),
+                arrival=arrival,
             )
             out["stills"] = stills.to_dict()
             out["still_times"] = stills.times
@@ -576,11 +604,13 @@ def run_stage(
     inputs: ReconstructionInputs | None = None,
     progress: ProgressFn = no_progress,
 ) -> dict[str, Any]:
-    """Run one stage by name (ingest needs `inputs`)."""
+    """Run one stage by name (ingest needs `inputs`; frames takes the video from them)."""
     if stage == "ingest":
         if inputs is None:
             raise InputError("the ingest stage needs the inputs")
         return ingest(inputs, work_dir, options, progress)
+    if stage == "frames":
+        return frames(work_dir, options, progress, inputs)
     if stage not in _STAGE_FUNCTIONS:
         raise InputError(f"unknown stage {stage!r}; stages are {STAGES}")
     return _STAGE_FUNCTIONS[stage](work_dir, options, progress)

@@ -3,6 +3,7 @@
 
 import { ApiError, getJson, postJson } from "../api";
 import { escapeHtml, formatBytes, formatPercent, toZonedWallTime, zonedWallTimeToUtc } from "../format";
+import { faststart } from "../faststart";
 import type { Job, MapConfig, Site, Survey } from "../types";
 import { type RunningUpload, startUpload } from "../upload";
 import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey } from "../validation";
@@ -147,14 +148,22 @@ export class UploadPanel {
     }
   }
 
-  /** One file up, resolved when the server has checked and taken it. */
-  private sendFile(file: File, metadata: Record<string, string>, label: string): Promise<UploadStatus> {
+  /** One file up, resolved when the server has checked and taken it. `onCreated` runs
+   * once the server knows the upload; `body` is what is sent for the file. */
+  private sendFile(
+    file: File,
+    metadata: Record<string, string>,
+    label: string,
+    onCreated?: () => Promise<void>,
+    body: Blob = file,
+  ): Promise<UploadStatus> {
     const progress = this.$("#upload-progress") as HTMLProgressElement;
     progress.hidden = false;
     return new Promise((resolve, reject) => {
       this.cancelled = reject;
       startUpload(file, metadata, this.config.upload_chunk_bytes, {
         onHashing: (f) => this.status(`Checking ${label} before sending: ${formatPercent(f)}`),
+        onCreated: () => void onCreated?.().catch(reject),
         onResuming: (offset, total) =>
           this.status(`Resuming ${label}: ${formatBytes(offset)} of ${formatBytes(total)} were already sent.`),
         onProgress: (sent, total) => {
@@ -171,7 +180,7 @@ export class UploadPanel {
           }
         },
         onError: (reason) => reject(new Error(`${label} was not uploaded: ${reason}.`)),
-      })
+      }, body)
         .then((running) => (this.running = running))
         .catch(reject);
     });
@@ -198,13 +207,15 @@ export class UploadPanel {
   }
 
   /** A video + log or photo survey: the survey first, then its files (those not yet
-   * there, so that a reload resumes), then the reconstruction job. */
+   * there, so that a reload resumes), then the reconstruction job. A video survey is
+   * processed while its video uploads: the log goes first, the video is sent with its
+   * index first, and the job is queued as soon as the server knows the video's upload. */
   private async uploadSource(kind: "video" | "images", name: string, capturedAt: string): Promise<void> {
     const files =
       kind === "video"
         ? [
-            { file: this.files("video-file")[0], role: "video" },
             { file: this.files("log-file")[0], role: "log" },
+            { file: this.files("video-file")[0], role: "video" },
           ]
         : this.files("image-files").map((file) => ({ file, role: "image" }));
     const key = `slidewatch.source.${this.site.id}.${files.map((f) => `${f.file.name}-${f.file.size}`).join("+")}`;
@@ -212,7 +223,10 @@ export class UploadPanel {
     const known = localStorage.getItem(key);
     if (known) {
       survey = await getJson<Survey>(`sites/${this.site.id}/surveys/${known}`).catch(() => null);
-      if (survey?.status !== "receiving") survey = null;
+      // A survey processed while its video uploads is "processing" (or "failed", if the
+      // upload stalled): its video upload resumes too.
+      const resumable = survey?.status === "receiving" || (kind === "video" && survey?.status !== "ready");
+      if (!resumable) survey = null;
     }
     survey ??= await postJson<Survey>(`sites/${this.site.id}/surveys/sources`, {
       kind,
@@ -224,22 +238,31 @@ export class UploadPanel {
     const present = new Set(
       (await getJson<Array<{ name: string }>>(`sites/${this.site.id}/surveys/${survey.id}/files`)).map((f) => f.name),
     );
+    const id = survey.id;
+    let submitted = survey.status !== "receiving";
+    const submit = async (): Promise<void> => {
+      if (submitted) return;
+      submitted = true;
+      try {
+        this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${id}/process`, {}));
+      } catch (e) {
+        throw new Error(e instanceof ApiError ? e.message : String(e));
+      }
+    };
     for (const [i, { file, role }] of files.entries()) {
       if (present.has(file.name)) continue;
-      await this.sendFile(
-        file,
-        { site_id: String(this.site.id), purpose: "survey_file", survey_id: String(survey.id), role },
-        `${file.name} (${i + 1} of ${files.length})`,
-      );
+      const label = `${file.name} (${i + 1} of ${files.length})`;
+      const metadata = { site_id: String(this.site.id), purpose: "survey_file", survey_id: String(id), role };
+      if (role === "video") {
+        this.status(`Preparing ${file.name} so that it is processed while it uploads…`);
+        await this.sendFile(file, metadata, label, submit, await faststart(file));
+      } else {
+        await this.sendFile(file, metadata, label);
+      }
     }
-    try {
-      const job = await postJson<Job>(`sites/${this.site.id}/surveys/${survey.id}/process`, {});
-      localStorage.removeItem(key);
-      this.status(`All files are up; survey ${survey.id} is being reconstructed.`);
-      this.onJob(job);
-    } catch (e) {
-      throw new Error(e instanceof ApiError ? e.message : String(e));
-    }
+    await submit();
+    localStorage.removeItem(key);
+    this.status(`All files are up; survey ${id} is being reconstructed.`);
   }
 
   private async togglePause(): Promise<void> {

@@ -11,6 +11,9 @@ Unreadable input raises `InputError` naming the file: not a video, no video stre
 codec without a decoder, nothing decodable. Damage after the first frames (a truncated
 upload) ends the stream early with a warning in `VideoReader.warnings` instead, so that
 a streaming reconstruction keeps what it has.
+
+A video still uploading is read with its `Arrival` (the length it will have): decoding
+waits for bytes that have not arrived yet instead of ending (see `arriving.py`).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import cv2
 import numpy as np
 
 from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.arriving import Arrival, ArrivingFile
 
 
 @dataclass
@@ -79,14 +83,24 @@ def _gray(frame: av.VideoFrame, width: int | None, height: int | None) -> np.nda
     return cv2.LUT(luma, _LIMITED_TO_FULL)
 
 
-def _open(path: Path) -> av.container.InputContainer:
+def _open(path: Path, arrival: Arrival | None = None) -> av.container.InputContainer:
     name = path.name
     if not path.is_file():
         raise InputError(f"{name}: video not found")
-    if path.stat().st_size == 0:
+    size = path.stat().st_size
+    if size == 0 and arrival is None:
         raise InputError(f"{name}: the video file is empty")
+    still_arriving = arrival is not None and size < arrival.total_bytes
     try:
-        container = av.open(str(path), mode="r")
+        if still_arriving:
+            source = ArrivingFile(path, arrival)  # type: ignore[arg-type]
+            try:
+                container = av.open(source, mode="r")
+            except BaseException:
+                source.close()
+                raise
+        else:
+            container = av.open(str(path), mode="r")
     except av.FFmpegError as exc:
         raise InputError(
             f"{name}: not a readable video ({exc.strerror or exc}); is the file complete?"
@@ -112,10 +126,10 @@ def _creation_time(container: av.container.InputContainer) -> str | None:
     return dt.isoformat()
 
 
-def probe_video(path: Path | str) -> VideoInfo:
+def probe_video(path: Path | str, arrival: Arrival | None = None) -> VideoInfo:
     """Container, codec, size, frame rate, duration and creation time of a video."""
     path = Path(path)
-    container = _open(path)
+    container = _open(path, arrival)
     try:
         stream = container.streams.video[0]
         ctx = stream.codec_context
@@ -146,9 +160,10 @@ def probe_video(path: Path | str) -> VideoInfo:
 class VideoReader:
     """Decode a video as a stream of `VideoFrame`s (see the module doc for errors)."""
 
-    def __init__(self, path: Path | str) -> None:
+    def __init__(self, path: Path | str, arrival: Arrival | None = None) -> None:
         self.path = Path(path)
-        self.info = probe_video(self.path)
+        self.arrival = arrival
+        self.info = probe_video(self.path, arrival)
         self.warnings: list[str] = []
         self.frames_decoded = 0
 
@@ -163,7 +178,7 @@ class VideoReader:
     ) -> Iterator[VideoFrame]:
         """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h)."""
         name = self.path.name
-        container = _open(self.path)
+        container = _open(self.path, self.arrival)
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
         stream.codec_context.thread_count = threads
