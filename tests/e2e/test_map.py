@@ -297,3 +297,54 @@ def test_a_video_survey_is_processed_while_it_uploads(
     assert stored[0].stat().st_size == camera_video.stat().st_size
     expect(page.locator(".survey-list")).to_contain_text("After the storm")
     shot(page, "video-survey-processed")
+
+
+def test_a_reload_during_a_processed_video_upload_resumes_it(
+    page: Page, app_server: App, simulated_mounds_survey
+) -> None:
+    """The page goes away while the video is going up and its survey is already being
+    processed: choosing the same files again resumes that upload, for that survey."""
+    flight, _ = simulated_mounds_survey
+    sign_in(page, app_server)
+    create_site(page, "North ridge")
+    calls: list[str] = []
+
+    def log(request: Request) -> None:
+        if request.method == "POST" and request.url.endswith(("/surveys/sources", "/process")):
+            calls.append(request.url.rsplit("/", 1)[-1])
+        if request.method == "POST" and request.url.endswith("/api/v1/uploads"):
+            calls.append("upload")
+
+    page.on("request", log)
+    patches = {"n": 0}
+
+    def hold_after_twenty(route: Route) -> None:
+        if route.request.method == "PATCH":
+            patches["n"] += 1
+            if patches["n"] > 20:
+                return  # never answered: the page goes away under it
+        route.continue_()
+
+    def choose_files() -> None:
+        page.get_by_label("Video + flight log").check()
+        page.get_by_label("Video (.mp4 or .mov)").set_input_files(str(flight / "DJI_0001.MP4"))
+        page.get_by_label("Flight log (.srt or .csv)").set_input_files(str(flight / "DJI_0001.SRT"))
+        page.get_by_label("Survey name").fill("Resumed flight")
+        page.get_by_label(re.compile(r"^Flown at")).fill("2026-07-04T09:00")
+        page.get_by_role("button", name="Upload", exact=True).click()
+
+    page.route("**/api/v1/uploads/*", hold_after_twenty)
+    with page.expect_request(lambda r: r.url.endswith("/process")):
+        choose_files()
+    while patches["n"] <= 20:  # the video is partly up when the page goes
+        page.wait_for_timeout(100)
+    assert calls == ["sources", "upload", "upload", "process"], calls
+    page.unroute("**/api/v1/uploads/*")
+    page.reload()
+    expect(page.get_by_role("heading", name="North ridge", level=1)).to_be_visible()
+    choose_files()
+    expect(page.locator("#upload-status")).to_contain_text("being reconstructed", timeout=60_000)
+    assert calls == ["sources", "upload", "upload", "process"], "nothing made again"
+    job = page.locator(".job").first
+    expect(job).to_have_class(re.compile("job-succeeded"), timeout=JOB_TIMEOUT_MS)
+    expect(page.locator(".survey-list")).to_contain_text("Resumed flight")

@@ -18,6 +18,11 @@ tilt left in dh biases the horizontal estimate (measured: 1 m/km gave 0.04 px of
 
 Flat terrain (too few pixels steeper than `min_slope_deg`) carries no horizontal
 information; then only the vertical correction (and tilt) is estimated.
+
+Nuth & Kääb converges only from closer than the terrain's features are wide: two
+stand-alone GNSS flights can be metres apart. A first shift by phase correlation
+(coarse_shift.py) is therefore applied before it when the DSMs agree better with it
+than without; Nuth & Kääb refines from there (`initial_shift_*` in the result).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import rasterio
 from rasterio.transform import Affine
 from scipy import ndimage
 
+from worker.pipeline.coarse_shift import coarse_shift
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import is_metric_projected
 from worker.pipeline.progress import ProgressFn, no_progress
@@ -57,6 +63,7 @@ class CoregisterOptions:
     nuth_kaab_tolerance_px: float = 0.005  # step size that ends the iterations
     subsample: int = 200_000  # pixels used per fit (measured: same accuracy as 500k)
     min_stable_pixels: int = 1_000
+    coarse_shift: bool = True  # phase correlation first (see the module doc)
     seed: int = 42
 
 
@@ -80,6 +87,8 @@ class CoregisterResult:
     iterations: int
     notes: list[str]
     seconds: float
+    initial_shift_east_m: float = 0.0  # the phase-correlation shift Nuth & Kääb began from
+    initial_shift_north_m: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -149,8 +158,10 @@ def coregister(
             "only the vertical shift was corrected"
         )
 
-    stable = valid.copy()
-    shift = (0.0, 0.0)
+    initial = _initial_shift(pre, post, transform, crs, options) if horizontal else (0.0, 0.0)
+    start_post = _apply_shift(post, transform, crs, initial)
+    stable = valid & np.isfinite(start_post)
+    shift = initial
     plane = _Plane()
     shifted = post
     iterations = 0
@@ -158,8 +169,9 @@ def coregister(
     for iterations in range(1, options.max_iterations + 1):
         if horizontal:
             tilt_only = _Plane(0.0, plane.b, plane.c).evaluate(dx, dy)
-            post_smooth = _smooth(post - tilt_only, options.smoothing_px)
-            shift = _nuth_kaab(pre_smooth, post_smooth, stable, transform, crs, options)
+            post_smooth = _smooth(start_post - tilt_only, options.smoothing_px)
+            refined = _nuth_kaab(pre_smooth, post_smooth, stable, transform, crs, options)
+            shift = (initial[0] + refined[0], initial[1] + refined[1])
         shifted = _apply_shift(post, transform, crs, shift)
         dh = shifted - pre
         plane = _fit_plane(dh, stable, dx, dy, options)
@@ -202,7 +214,33 @@ def coregister(
         iterations=iterations,
         notes=notes,
         seconds=time.perf_counter() - start,
+        initial_shift_east_m=initial[0],
+        initial_shift_north_m=initial[1],
     )
+
+
+def _initial_shift(
+    pre: np.ndarray,
+    post: np.ndarray,
+    transform: Affine,
+    crs: rasterio.crs.CRS,
+    options: CoregisterOptions,
+) -> tuple[float, float]:
+    """The phase-correlation shift, when it is over a pixel and the DSMs agree better
+    with it (a smaller NMAD of post - pre) than without; else none."""
+    if not options.coarse_shift:
+        return (0.0, 0.0)
+    res_x, res_y = abs(transform.a), abs(transform.e)
+    found = coarse_shift(pre, post, res_x, res_y)
+    if not found.used or np.hypot(found.east_m / res_x, found.north_m / res_y) < 1.0:
+        return (0.0, 0.0)
+    moved = _apply_shift(post, transform, crs, (found.east_m, found.north_m))
+    with np.errstate(invalid="ignore"):
+        if _nmad((moved - pre)[np.isfinite(moved - pre)]) < _nmad(
+            (post - pre)[np.isfinite(post - pre)]
+        ):
+            return (found.east_m, found.north_m)
+    return (0.0, 0.0)
 
 
 def _centred_coordinates(

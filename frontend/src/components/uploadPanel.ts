@@ -261,8 +261,17 @@ export class UploadPanel {
       }
     }
     await submit();
+    if (survey.status === "failed") await this.retryReconstruction(id);
     localStorage.removeItem(key);
     this.status(`All files are up; survey ${id} is being reconstructed.`);
+  }
+
+  /** A survey whose job failed while its video was arriving (the upload stalled): now that
+   * the video is whole, its job runs again from the failed stage. */
+  private async retryReconstruction(surveyId: number): Promise<void> {
+    const jobs = await getJson<Job[]>(`sites/${this.site.id}/jobs`);
+    const failed = jobs.find((j) => j.kind === "reconstruction" && j.survey_id === surveyId && j.state === "failed");
+    if (failed) this.onJob(await postJson<Job>(`sites/${this.site.id}/jobs/${failed.id}/retry`, {}));
   }
 
   private async togglePause(): Promise<void> {
