@@ -1,5 +1,7 @@
 """Helpers of the API tests."""
 
+import base64
+import hashlib
 from pathlib import Path
 
 from fastapi.testclient import TestClient
@@ -25,3 +27,35 @@ def run_job_inline(job_id: int, first_stage: str = "align") -> None:
     stage: str | None = first_stage
     while stage is not None:
         stage = execute_stage(job_id, stage)
+
+
+def create_video_upload(
+    client: TestClient,
+    auth: dict[str, str],
+    site_id: int,
+    survey_id: int,
+    data: bytes,
+    sha256: str | None = None,
+) -> str:
+    """A resumable upload (tus) of the survey's video DJI_0001.MP4, no byte sent yet; its
+    URL. `sha256` defaults to that of `data`."""
+    values = {
+        "site_id": str(site_id),
+        "filename": "DJI_0001.MP4",
+        "purpose": "survey_file",
+        "survey_id": str(survey_id),
+        "role": "video",
+        "sha256": sha256 or hashlib.sha256(data).hexdigest(),
+    }
+    meta = ",".join(f"{k} {base64.b64encode(v.encode()).decode()}" for k, v in values.items())
+    created = client.post(
+        "/api/v1/uploads",
+        headers={
+            **auth,
+            "Tus-Resumable": "1.0.0",
+            "Upload-Length": str(len(data)),
+            "Upload-Metadata": meta,
+        },
+    )
+    assert created.status_code == 201, created.text
+    return created.headers["Location"]

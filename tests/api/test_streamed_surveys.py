@@ -5,7 +5,6 @@ already processing; an upload refused on completion fails the job with its reaso
 reading of the growing file by a real worker is in tests/integration.
 """
 
-import hashlib
 from pathlib import Path
 
 from fastapi import FastAPI
@@ -15,21 +14,7 @@ from sqlalchemy import select
 from backend.db.models import SurveyFile, Upload
 from tests.api.test_survey_sources import new_site, new_source, put_file
 from tests.api.test_uploads import create, metadata, patch
-from tests.api_helpers import run_job_inline
-
-
-def _video_upload(client: TestClient, auth: dict, site_id: int, survey_id: int, data: bytes, sha):
-    meta = metadata(
-        site_id=str(site_id),
-        filename="DJI_0001.MP4",
-        purpose="survey_file",
-        survey_id=str(survey_id),
-        role="video",
-        sha256=sha,
-    )
-    created = create(client, auth, len(data), meta)
-    assert created.status_code == 201, created.text
-    return created.headers["Location"]
+from tests.api_helpers import create_video_upload, run_job_inline
 
 
 def _submit(client: TestClient, auth: dict, site_id: int, survey_id: int):
@@ -47,7 +32,7 @@ def test_a_survey_is_processed_while_its_video_uploads(
     assert refused.status_code == 409 and "no video and no log" in refused.json()["detail"]
     assert put_file(client, auth, site_id, sid, flight / "DJI_0001.SRT", "log").status_code == 201
     data = (flight / "DJI_0001.MP4").read_bytes()
-    location = _video_upload(client, auth, site_id, sid, data, hashlib.sha256(data).hexdigest())
+    location = create_video_upload(client, auth, site_id, sid, data)
     assert patch(client, auth, location, 0, data[:1000]).status_code == 204
 
     job = _submit(client, auth, site_id, sid)
@@ -84,7 +69,7 @@ def test_a_streamed_video_refused_on_completion_fails_the_job(
     sid = new_source(client, auth, site_id)["id"]
     assert put_file(client, auth, site_id, sid, flight / "DJI_0001.SRT", "log").status_code == 201
     data = (flight / "DJI_0001.MP4").read_bytes()
-    location = _video_upload(client, auth, site_id, sid, data, "0" * 64)  # not its SHA-256
+    location = create_video_upload(client, auth, site_id, sid, data, "0" * 64)  # wrong SHA
     job = _submit(client, auth, site_id, sid)
     assert job.status_code == 202, job.text
     assert patch(client, auth, location, 0, data).status_code == 422

@@ -4,7 +4,6 @@ Each of the five stages runs as its own Celery task on the real broker, and the 
 ends `ready` with a DSM product whose pixels match the simulator's truth in shape.
 """
 
-import hashlib
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,9 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+from fastapi.testclient import TestClient
 
 from backend.config import Settings
-from tests.api.test_uploads import create, metadata, patch
+from tests.api.test_uploads import patch
+from tests.api_helpers import create_video_upload
 from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
 from tests.video_helpers import faststart_copy
 from worker.pipeline.ingest.video import VideoReader
@@ -68,6 +69,28 @@ def test_video_survey_is_reconstructed_by_a_worker(
     assert 1.0 < relief < 2.2
 
 
+def _video_arriving(
+    client: TestClient, auth: dict, log: Path, tmp_path: Path
+) -> tuple[int, int, bytes, str]:
+    """A site, a video survey with its log, and the resumable upload of its video (index
+    first, as the map sends it) with no byte sent: (site, survey, video bytes, upload URL)."""
+    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
+    sid = client.post(
+        f"/api/v1/sites/{site}/surveys/sources",
+        json={"kind": "video", "name": "step 1", "captured_at": "2026-07-01T09:00:00Z"},
+        headers=auth,
+    ).json()["id"]
+    response = client.put(
+        f"/api/v1/sites/{site}/surveys/{sid}/files/{log.name}",
+        params={"role": "log"},
+        content=log.read_bytes(),
+        headers=auth,
+    )
+    assert response.status_code == 201, response.text
+    data = faststart_copy(log.parent / "DJI_0001.MP4", tmp_path / "DJI_0001.MP4").read_bytes()
+    return site, sid, data, create_video_upload(client, auth, site, sid, data)
+
+
 def test_video_is_processed_while_it_uploads_and_a_stalled_upload_resumes(
     redis_postgres_settings: Settings,
     start_worker: Callable[..., SlidewatchProcess],
@@ -82,30 +105,9 @@ def test_video_is_processed_while_it_uploads_and_a_stalled_upload_resumes(
     monkeypatch.setenv("SLIDEWATCH_UPLOAD_STALL_TIMEOUT_S", "4")
     client, auth = api_client(redis_postgres_settings)
     start_worker(redis_postgres_settings)
-    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
-    sid = client.post(
-        f"/api/v1/sites/{site}/surveys/sources",
-        json={"kind": "video", "name": "step 1", "captured_at": "2026-07-01T09:00:00Z"},
-        headers=auth,
-    ).json()["id"]
-    log = flight / "flight-airdata.csv"
-    response = client.put(
-        f"/api/v1/sites/{site}/surveys/{sid}/files/{log.name}",
-        params={"role": "log"},
-        content=log.read_bytes(),
-        headers=auth,
+    site, sid, data, location = _video_arriving(
+        client, auth, flight / "flight-airdata.csv", tmp_path
     )
-    assert response.status_code == 201, response.text
-    data = faststart_copy(flight / "DJI_0001.MP4", tmp_path / "DJI_0001.MP4").read_bytes()
-    meta = metadata(
-        site_id=str(site),
-        filename="DJI_0001.MP4",
-        purpose="survey_file",
-        survey_id=str(sid),
-        role="video",
-        sha256=hashlib.sha256(data).hexdigest(),
-    )
-    location = create(client, auth, len(data), meta).headers["Location"]
     half = len(data) // 2
     assert patch(client, auth, location, 0, data[:half]).status_code == 204
     job_id = client.post(f"/api/v1/sites/{site}/surveys/{sid}/process", headers=auth).json()["id"]
@@ -147,29 +149,7 @@ def test_a_video_arriving_in_pieces_is_reconstructed_as_it_comes(
     flight, _ = simulated_mounds_survey
     client, auth = api_client(redis_postgres_settings)
     start_worker(redis_postgres_settings)
-    site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
-    sid = client.post(
-        f"/api/v1/sites/{site}/surveys/sources",
-        json={"kind": "video", "name": "step 1", "captured_at": "2026-07-01T09:00:00Z"},
-        headers=auth,
-    ).json()["id"]
-    log = flight / "DJI_0001.SRT"
-    client.put(
-        f"/api/v1/sites/{site}/surveys/{sid}/files/{log.name}",
-        params={"role": "log"},
-        content=log.read_bytes(),
-        headers=auth,
-    ).raise_for_status()
-    data = faststart_copy(flight / "DJI_0001.MP4", tmp_path / "DJI_0001.MP4").read_bytes()
-    meta = metadata(
-        site_id=str(site),
-        filename="DJI_0001.MP4",
-        purpose="survey_file",
-        survey_id=str(sid),
-        role="video",
-        sha256=hashlib.sha256(data).hexdigest(),
-    )
-    location = create(client, auth, len(data), meta).headers["Location"]
+    site, sid, data, location = _video_arriving(client, auth, flight / "DJI_0001.SRT", tmp_path)
     pieces = 6
     step = -(-len(data) // pieces)
     assert patch(client, auth, location, 0, data[:step]).status_code == 204
