@@ -126,15 +126,19 @@ def grid_points(
     if statistic not in STATISTICS:
         raise InputError(f"unknown DSM statistic {statistic!r}; use one of {STATISTICS}")
     points = np.asarray(points, dtype=np.float64)
-    points = points[np.isfinite(points).all(axis=1)]
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():
+        points = points[finite]
+    del finite
     if len(points) == 0:
         raise InputError("the point cloud is empty; no DSM can be made")
     res = float(resolution_m)
+    x, y = points[:, 0], points[:, 1]
     if bounds is None:
-        left = np.floor(points[:, 0].min() / res) * res
-        bottom = np.floor(points[:, 1].min() / res) * res
-        right = (np.floor(points[:, 0].max() / res) + 1) * res
-        top = (np.floor(points[:, 1].max() / res) + 1) * res
+        left = np.floor(x.min() / res) * res
+        bottom = np.floor(y.min() / res) * res
+        right = (np.floor(x.max() / res) + 1) * res
+        top = (np.floor(y.max() / res) + 1) * res
     else:
         left, bottom, right, top = bounds
     cols = round((right - left) / res)
@@ -145,11 +149,24 @@ def grid_points(
         raise InputError(
             f"a DSM of {rows} x {cols} cells at {res} m is too large; choose a coarser resolution"
         )
-    c = np.floor((points[:, 0] - left) / res).astype(np.int64)
-    r = np.floor((top - points[:, 1]) / res).astype(np.int64)
-    inside = (c >= 0) & (c < cols) & (r >= 0) & (r < rows)
-    cell = r[inside] * cols + c[inside]
-    z = points[inside, 2]
+    # The cell of every point, with as few temporaries of millions of values as can be:
+    # fresh memory costs more than the arithmetic.
+    c = np.subtract(x, left)
+    c /= res
+    np.floor(c, out=c)
+    r = np.subtract(top, y)
+    r /= res
+    np.floor(r, out=r)
+    z = points[:, 2]
+    if c.min() < 0 or c.max() >= cols or r.min() < 0 or r.max() >= rows:
+        inside = (c >= 0) & (c < cols) & (r >= 0) & (r < rows)
+        c, r, z = c[inside], r[inside], z[inside]
+    # Whole floats: exact, and one conversion to integers for the lot.
+    r *= cols
+    r += c
+    del c
+    cell = r.astype(np.int64)
+    del r
     counts = np.bincount(cell, minlength=rows * cols)
     if statistic == "mean":
         sums = np.bincount(cell, weights=z, minlength=rows * cols)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pycolmap
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.georef import (
@@ -161,11 +162,16 @@ def _refine_segment(
         },
         priors={int(k): (w - origin, sig) for k, w in zip(kf_idx.tolist(), world, strict=True)},
     )
+    # COLMAP's alignment to the priors draws random samples and Ceres sums in thread
+    # order: seeded and on one thread, the same survey gives the same DSM every time
+    # (otherwise cells moved by up to 8 mm between runs).
+    pycolmap.set_random_seed(0)
     poses, points, report = bundle_adjust(
         problem,
         sparse.k,
         sparse.size,
         max_iterations=options.refine_iterations,
+        threads=1,
     )
     if report.priors_used:
         before = sparse.kf_centres()[seg_kf]

@@ -42,6 +42,7 @@ import dataclasses
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,7 @@ from worker.pipeline.frames import (
     FrameOptions,
     extract_still_frames,
     iter_prepared_frames,
+    prefetched,
     prepare_video_frames,
     read_frame_scan,
     tracking_frames,
@@ -73,11 +75,17 @@ from worker.pipeline.ingest.time_offset import (
     refine_time_offset,
 )
 from worker.pipeline.ingest.video import probe_video
-from worker.pipeline.pointcloud import grid_outliers, statistical_outliers, write_ply
+from worker.pipeline.pointcloud import (
+    compact_rows,
+    grid_outliers,
+    statistical_outliers,
+    write_ply,
+)
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.sfm import SfmOptions, run_sfm
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
+from worker.pipeline.slam.ties import TieOptions, keyframe_images, tie_flight_lines
 from worker.pipeline.trajectory import write_trajectory_csv
 
 STAGES = ("ingest", "frames", "reconstruct", "georeference", "dsm")
@@ -128,6 +136,7 @@ class ReconstructionOptions:
     angle_unit: str = "auto"
     frames: FrameOptions = field(default_factory=FrameOptions)
     slam: SlamOptions = field(default_factory=SlamOptions)
+    ties: TieOptions = field(default_factory=TieOptions)  # slam: between flight lines
     sfm: SfmOptions = field(default_factory=SfmOptions)
     georef: MapGeorefOptions = field(default_factory=MapGeorefOptions)
     dsm: DsmOptions = field(default_factory=DsmOptions)
@@ -414,11 +423,16 @@ def reconstruct(
             )
         stream = (
             (f.t, f.index, f.image)
-            for f in iter_prepared_frames(work_dir / FRAMES_DIR)
+            for f in prefetched(iter_prepared_frames(work_dir / FRAMES_DIR))
             if f.index in wanted
         )
         sparse = run_slam(stream, intr, options.slam, progress, total_frames=len(wanted))
         out["tracked_frames"] = len(wanted)
+        if options.ties.enabled:
+            tie_start = time.perf_counter()
+            images = keyframe_images(sparse, iter_prepared_frames(work_dir / FRAMES_DIR))
+            ties = tie_flight_lines(sparse, images.get, options.ties)
+            out["ties"] = {**ties.to_dict(), "seconds": round(time.perf_counter() - tie_start, 3)}
         duration = float(scan.t[-1] - scan.t[0]) if scan.t.size > 1 else 0.0
     else:
         log = _load_log(ing, options)
@@ -520,8 +534,8 @@ def dsm(
     sparse = SparseMap.load(work_dir / GEOREF_MAP)
     crs = geo["crs"]
     pts_sparse = sparse.point_xyz
-    dense = sparse.dense_points()
-    out: dict[str, Any] = {"sparse_points": len(pts_sparse), "dense_points": len(dense)}
+    n_dense = len(sparse.dense_xyz)
+    out: dict[str, Any] = {"sparse_points": len(pts_sparse), "dense_points": n_dense}
     if options.sparse_sor and len(pts_sparse):
         keep = statistical_outliers(pts_sparse)
         out["sparse_outliers_removed"] = int((~keep).sum())
@@ -530,21 +544,32 @@ def dsm(
     gsd = _ground_sampling_distance(sparse)
     resolution = options.dsm.resolution_m or _snap_125(1.5 * gsd)
     out["gsd_m"] = round(gsd, 4)
-    if len(dense):
+    # One array for the cloud: the dense points in the map frame, filtered in place, then
+    # the sparse ones (fresh memory for millions of points costs more than the copies).
+    cloud = np.empty((n_dense + len(pts_sparse), 3))
+    n = n_dense
+    if n_dense:
+        sparse.dense_points(out=cloud[:n_dense])
         if options.dense_sor:
-            keep = statistical_outliers(dense)
+            keep = statistical_outliers(cloud[:n])
             out["dense_sor_removed"] = int((~keep).sum())
-            dense = dense[keep]
-        keep = grid_outliers(dense, 4 * resolution, k=options.dense_grid_k)
+            n = compact_rows(cloud, keep)
+        keep = grid_outliers(cloud[:n], 4 * resolution, k=options.dense_grid_k)
         out["dense_grid_removed"] = int((~keep).sum())
-        dense = dense[keep]
-    points = np.vstack([dense, pts_sparse]) if len(dense) else pts_sparse
+        n = compact_rows(cloud, keep)
+        del keep
+    cloud[n : n + len(pts_sparse)] = pts_sparse
+    points = cloud[: n + len(pts_sparse)]
     if len(points) < 10:
         raise InputError("the reconstruction has too few points for a DSM")
     progress(0.4)
-    write_ply(work_dir / POINTS, points, comment=f"crs {crs}")
     dsm_options = dataclasses.replace(options.dsm, resolution_m=resolution)
-    result = export_dsm(points, crs, work_dir, dsm_options, name="dsm")
+    # points.ply is written by a second thread while the DSM is gridded (file writes
+    # release the GIL); neither changes `points`.
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ply") as pool:
+        ply = pool.submit(write_ply, work_dir / POINTS, points, comment=f"crs {crs}")
+        result = export_dsm(points, crs, work_dir, dsm_options, name="dsm")
+        ply.result()
     out["dsm"] = result.to_dict()
     out["points"] = len(points)
     out["seconds"] = round(time.perf_counter() - start, 3)

@@ -4,7 +4,8 @@
 poses, the sparse points and their keyframe observations, every tracked frame's pose,
 and dense points in their keyframe's camera frame (so that moving a keyframe moves its
 dense points). It is saved as one uncompressed .npz (compressing 9M dense points took
-12 s) and gives the camera `Trajectory`,
+12 s; the dense points' keyframe, partner and baseline are stored once per run of
+points they share) and gives the camera `Trajectory`,
 the sparse and the dense clouds in any frame.
 """
 
@@ -74,22 +75,26 @@ class SparseMap:
             return self.point_xyz
         return self.point_xyz[self.point_segment == segment]
 
-    def dense_points(self, segment: int | None = None) -> np.ndarray:
+    def dense_points(self, segment: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Dense points in the map frame from the current keyframe poses.
 
         Each point is stored in its keyframe's camera frame in the units of the moment
         it was computed; it is scaled by the ratio of its pair's current baseline to the
         baseline it was computed with, so similarity transforms and pose-prior
-        adjustments carry the dense cloud along."""
+        adjustments carry the dense cloud along. With `out` ((N, 3) float64), the points
+        are written there (and `out` is returned)."""
         if self.dense_xyz.size == 0:
-            return np.empty((0, 3))
+            return np.empty((0, 3)) if out is None else out
         kf, partner = self.dense_kf, self.dense_partner
         xyz, then = self.dense_xyz, self.dense_baseline
         if segment is not None:
             sel = self.kf_segment[self.dense_kf] == segment
             kf, partner, xyz, then = kf[sel], partner[sel], xyz[sel], then[sel]
         centres = self.kf_centres()
-        out = np.empty((kf.size, 3))
+        if out is None:
+            out = np.empty((kf.size, 3))
+        elif out.shape != (kf.size, 3) or out.dtype != np.float64:
+            raise ValueError(f"out must be a ({kf.size}, 3) float64 array")
         # Points are stored in runs of one keyframe pair: transform run by run.
         edges = np.flatnonzero(
             np.concatenate([[True], (kf[1:] != kf[:-1]) | (partner[1:] != partner[:-1]), [True]])
@@ -142,12 +147,28 @@ class SparseMap:
         self.fr_tr[ok] = np.einsum("nij,nj->ni", self.fr_rel_r[ok], t_ref) + self.fr_rel_t[ok]
 
     # -- files ---------------------------------------------------------------------
+    # Per dense point, keyframe, partner and baseline repeat over long runs (a keyframe
+    # pair's points): the file keeps them once per run (96 of 168 MB fewer to write and
+    # read for 6M points).
+    _DENSE_RUN_FIELDS = ("dense_kf", "dense_partner", "dense_baseline")
+
     def save(self, path: Path) -> None:
         arrays = {
             name: getattr(self, name)
             for name in self.__dataclass_fields__
             if name not in ("size", "stats")
         }
+        runs = [np.asarray(getattr(self, name)) for name in self._DENSE_RUN_FIELDS]
+        n = len(self.dense_xyz)
+        if n and all(r.shape == (n,) for r in runs):
+            change = np.zeros(n - 1, dtype=bool)
+            for r in runs:
+                change |= r[1:] != r[:-1]
+            starts = np.concatenate([[0], np.flatnonzero(change) + 1]).astype(np.int64)
+            arrays["dense_run_start"] = starts
+            for name, r in zip(self._DENSE_RUN_FIELDS, runs, strict=True):
+                del arrays[name]
+                arrays[f"{name}_run"] = r[starts]
         import json
 
         meta = {"size": list(self.size), "stats": self.stats}
@@ -161,4 +182,9 @@ class SparseMap:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             kwargs = {name: data[name] for name in data.files if name != "meta"}
+        if "dense_run_start" in kwargs:  # (files from before the runs hold every value)
+            starts = kwargs.pop("dense_run_start")
+            counts = np.diff(np.append(starts, len(kwargs["dense_xyz"])))
+            for name in cls._DENSE_RUN_FIELDS:
+                kwargs[name] = np.repeat(kwargs.pop(f"{name}_run"), counts)
         return cls(size=tuple(meta["size"]), stats=meta["stats"], **kwargs)
