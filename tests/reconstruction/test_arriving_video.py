@@ -1,6 +1,7 @@
 """A video read while it is still uploading: frames come as their bytes arrive, the result
 is the same as from the finished file, and a stalled or removed upload is named."""
 
+import os
 import time
 from pathlib import Path
 
@@ -40,7 +41,9 @@ def _frames_while_arriving(source: Path, part: Path, pieces: int = 12, pause_s: 
 def test_an_index_first_video_is_decoded_as_it_arrives(clip, tmp_path):
     camera, faststart = clip
     assert moov_before_mdat(faststart) and not moov_before_mdat(camera)
+    open_files = len(os.listdir("/proc/self/fd"))
     frames, first_at, last_piece_at = _frames_while_arriving(faststart, tmp_path / "up.part")
+    assert len(os.listdir("/proc/self/fd")) == open_files  # the upload's file is closed
     # Decoding began well before the last byte came (12 pieces 0.15 s apart).
     assert first_at < last_piece_at - 0.5
     complete = list(VideoReader(faststart).frames())

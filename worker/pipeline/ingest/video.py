@@ -19,6 +19,7 @@ waits for bytes that have not arrived yet instead of ending (see `arriving.py`).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from fractions import Fraction
@@ -83,32 +84,29 @@ def _gray(frame: av.VideoFrame, width: int | None, height: int | None) -> np.nda
     return cv2.LUT(luma, _LIMITED_TO_FULL)
 
 
-def _open(path: Path, arrival: Arrival | None = None) -> av.container.InputContainer:
+@contextmanager
+def _opened(path: Path, arrival: Arrival | None = None) -> Iterator[av.container.InputContainer]:
+    """The video opened for decoding (through an `ArrivingFile` while it is still
+    arriving); container and file are closed on leaving."""
     name = path.name
     if not path.is_file():
         raise InputError(f"{name}: video not found")
     size = path.stat().st_size
     if size == 0 and arrival is None:
         raise InputError(f"{name}: the video file is empty")
-    still_arriving = arrival is not None and size < arrival.total_bytes
-    try:
-        if still_arriving:
-            source = ArrivingFile(path, arrival)  # type: ignore[arg-type]
-            try:
-                container = av.open(source, mode="r")
-            except BaseException:
-                source.close()
-                raise
-        else:
-            container = av.open(str(path), mode="r")
-    except av.FFmpegError as exc:
-        raise InputError(
-            f"{name}: not a readable video ({exc.strerror or exc}); is the file complete?"
-        ) from None
-    if not container.streams.video:
-        container.close()
-        raise InputError(f"{name}: the file has no video stream")
-    return container
+    with ExitStack() as stack:
+        source: ArrivingFile | str = str(path)
+        if arrival is not None and size < arrival.total_bytes:
+            source = stack.enter_context(ArrivingFile(path, arrival))
+        try:
+            container = stack.enter_context(av.open(source, mode="r"))
+        except av.FFmpegError as exc:
+            raise InputError(
+                f"{name}: not a readable video ({exc.strerror or exc}); is the file complete?"
+            ) from None
+        if not container.streams.video:
+            raise InputError(f"{name}: the file has no video stream")
+        yield container
 
 
 def _creation_time(container: av.container.InputContainer) -> str | None:
@@ -129,8 +127,7 @@ def _creation_time(container: av.container.InputContainer) -> str | None:
 def probe_video(path: Path | str, arrival: Arrival | None = None) -> VideoInfo:
     """Container, codec, size, frame rate, duration and creation time of a video."""
     path = Path(path)
-    container = _open(path, arrival)
-    try:
+    with _opened(path, arrival) as container:
         stream = container.streams.video[0]
         ctx = stream.codec_context
         if ctx is None or not ctx.name:
@@ -153,8 +150,6 @@ def probe_video(path: Path | str, arrival: Arrival | None = None) -> VideoInfo:
             frames=frames,
             creation_time=_creation_time(container),
         )
-    finally:
-        container.close()
 
 
 class VideoReader:
@@ -178,16 +173,15 @@ class VideoReader:
     ) -> Iterator[VideoFrame]:
         """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h)."""
         name = self.path.name
-        container = _open(self.path, self.arrival)
-        stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
-        stream.codec_context.thread_count = threads
-        width, height = size if size else (None, None)
-        first_pts: int | None = None
         index = -1
-        time_base = stream.time_base or Fraction(1, 90000)
-        fps = self.info.fps or 30.0
-        try:
+        with _opened(self.path, self.arrival) as container:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            stream.codec_context.thread_count = threads
+            width, height = size if size else (None, None)
+            first_pts: int | None = None
+            time_base = stream.time_base or Fraction(1, 90000)
+            fps = self.info.fps or 30.0
             decoded = container.decode(stream)
             while True:
                 try:
@@ -225,8 +219,6 @@ class VideoReader:
                     ).to_ndarray()
                 self.frames_decoded += 1
                 yield VideoFrame(index=index, t=t, image=image)
-        finally:
-            container.close()
         if index < 0:
             raise InputError(f"{name}: the video has no decodable frame")
 
