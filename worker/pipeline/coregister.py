@@ -158,8 +158,9 @@ def coregister(
             "only the vertical shift was corrected"
         )
 
-    initial = _initial_shift(pre, post, transform, crs, options) if horizontal else (0.0, 0.0)
-    start_post = _apply_shift(post, transform, crs, initial)
+    initial, start_post = (0.0, 0.0), post
+    if horizontal:
+        initial, start_post = _initial_shift(pre, post, transform, crs, options)
     stable = valid & np.isfinite(start_post)
     shift = initial
     plane = _Plane()
@@ -225,22 +226,24 @@ def _initial_shift(
     transform: Affine,
     crs: rasterio.crs.CRS,
     options: CoregisterOptions,
-) -> tuple[float, float]:
-    """The phase-correlation shift, when it is over a pixel and the DSMs agree better
-    with it (a smaller NMAD of post - pre) than without; else none."""
+) -> tuple[tuple[float, float], np.ndarray]:
+    """The phase-correlation shift and post moved by it, when it is over a pixel and the
+    DSMs agree better with it (a smaller NMAD of post - pre) than without; else no shift
+    and post as it is."""
+    none = ((0.0, 0.0), post)
     if not options.coarse_shift:
-        return (0.0, 0.0)
+        return none
     res_x, res_y = abs(transform.a), abs(transform.e)
     found = coarse_shift(pre, post, res_x, res_y)
     if not found.used or np.hypot(found.east_m / res_x, found.north_m / res_y) < 1.0:
-        return (0.0, 0.0)
-    moved = _apply_shift(post, transform, crs, (found.east_m, found.north_m))
-    with np.errstate(invalid="ignore"):
-        if _nmad((moved - pre)[np.isfinite(moved - pre)]) < _nmad(
-            (post - pre)[np.isfinite(post - pre)]
-        ):
-            return (found.east_m, found.north_m)
-    return (0.0, 0.0)
+        return none
+    shift = (found.east_m, found.north_m)
+    moved = _apply_shift(post, transform, crs, shift)
+
+    def spread(dh: np.ndarray) -> float:
+        return _nmad(dh[np.isfinite(dh)])
+
+    return (shift, moved) if spread(moved - pre) < spread(post - pre) else none
 
 
 def _centred_coordinates(
