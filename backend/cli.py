@@ -243,9 +243,11 @@ def _register_pipeline_commands() -> None:
     from worker.commands.reconstruct import reconstruct
     from worker.commands.simulate import simulate_command
     from worker.commands.train import train
+    from worker.commands.train_scorer import train_scorer_command
 
     main.add_command(bench)
     main.add_command(calibrate)
+    main.add_command(train_scorer_command)
     main.add_command(detect)
     main.add_command(reconstruct)
     main.add_command(simulate_command)

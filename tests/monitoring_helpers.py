@@ -100,7 +100,8 @@ def square(lon: float, lat: float, size: float = 0.0004) -> dict:
 
 def seed_detections(app: FastAPI) -> dict[str, int]:
     """A site with two comparisons: 25 detections on a 5 × 5 grid observed 2026-07-01 and
-    5 in a row observed 2026-08-01. Rows only (no files): for feature queries."""
+    5 in a row observed 2026-08-01, these with 95 % intervals. Rows only (no files): for
+    feature queries."""
     with app.state.sessionmaker() as session:
         site = Site(name="grid slope", description="seeded")
         session.add(site)
@@ -153,6 +154,17 @@ def seed_detections(app: FastAPI) -> dict[str, int]:
                     max_abs_dh_m=1.5,
                     score=0.8,
                     method="threshold",
+                    # August's with their 95 % intervals, July's without (as cnn's are).
+                    uncertainty=(
+                        {
+                            "area_m2_ci95": [90.0 + n, 112.0 + n],
+                            "volume_loss_m3_ci95": [45.0 + n, 55.0 + n],
+                            "volume_gain_m3_ci95": [36.0, 44.0],
+                            "lod_m": 0.12,
+                        }
+                        if comparison is comparisons[1]
+                        else None
+                    ),
                 )
             )
         session.commit()

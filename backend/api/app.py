@@ -13,6 +13,7 @@ from backend.api.routes import (
     health,
     job_events,
     jobs,
+    methods,
     models,
     ogc,
     products,
@@ -72,6 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         detection_feedback,
         detection_cells,
         models,
+        methods,
     ):
         api.include_router(module.router)
     app.include_router(api)

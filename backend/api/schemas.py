@@ -7,6 +7,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
+from worker.pipeline.comparison import METHOD_SUMMARIES, METHODS
 
 
 class ORMModel(BaseModel):
@@ -109,18 +110,53 @@ class SurveyFileOut(ORMModel):
     created_at: datetime
 
 
+# The methods' one-line summaries come from the library, so the API's documentation
+# says what GET /methods and the page say.
+_METHODS_DOC = " ".join(f"`{name}`: {METHOD_SUMMARIES[name]}" for name in METHODS)
+
+
 class ComparisonCreate(BaseModel):
     pre_survey_id: int
     post_survey_id: int
     method: str | None = Field(
         default=None,
-        description="Detection method: `cnn` (the detection model; the default when one is "
-        "installed) or `threshold` (Δh beyond the level of detection). A cnn comparison "
-        'runs the default model unless its parameters name one: {"cnn": {"model": '
-        '"name@version"}} (see GET /models).',
+        description=f"Detection method. {_METHODS_DOC} Without one, the default of "
+        "`GET /methods` (`scored` when its scorer ships with the installation, else "
+        "`threshold`). A cnn comparison runs the default detection model unless its "
+        'parameters name one: {"cnn": {"model": "name@version"}} (see GET /models); a '
+        "scored comparison runs the shipped scorer.",
     )
     parameters: dict[str, Any] = Field(
         default_factory=dict, description="Options of the comparison stages (see docs)."
+    )
+
+
+class MethodOut(BaseModel):
+    name: str
+    summary: str = Field(description="What the method does, in one line.")
+    stages: list[str] = Field(description="Its job's stages, in order.")
+    default: bool = Field(description="Whether a comparison without a method runs this one.")
+
+
+class DetectionOut(BaseModel):
+    """How a comparison detects: its method, the level of detection it applied and the
+    model version behind its detections."""
+
+    method: str
+    lod_m: float | None = Field(
+        default=None,
+        description="Median per-pixel LoD95 applied, in metres (None until the difference "
+        "stage has run).",
+    )
+    lod_p10_m: float | None = Field(default=None, description="10th percentile of the LoD95.")
+    lod_p90_m: float | None = Field(default=None, description="90th percentile of the LoD95.")
+    error_model: str | None = Field(
+        default=None, description="`heteroscedastic`, `uniform` or `fixed` (a given lod_m)."
+    )
+    model: str | None = Field(
+        default=None,
+        description='"name@version": the scorer (scored, once its score stage has run) or '
+        "the detection model (cnn); None for threshold.",
     )
 
 
@@ -137,6 +173,7 @@ class ComparisonOut(ORMModel):
     created_at: datetime
     finished_at: datetime | None
     job_id: int | None = None
+    detection: DetectionOut | None = None
 
 
 class StageRunOut(ORMModel):

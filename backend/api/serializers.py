@@ -2,8 +2,16 @@
 
 from typing import Any
 
-from backend.api.schemas import ComparisonOut, JobOut, ProductOut, StageRunOut, StoredFileOut
+from backend.api.schemas import (
+    ComparisonOut,
+    DetectionOut,
+    JobOut,
+    ProductOut,
+    StageRunOut,
+    StoredFileOut,
+)
 from backend.db.models import Comparison, Detection, Job, Product
+from backend.services.comparisons import detection_info
 from backend.services.feedback import feedback_summary
 from backend.services.jobs import job_progress
 
@@ -43,6 +51,7 @@ def job_out(job: Job) -> JobOut:
 def comparison_out(comparison: Comparison, job: Job | None) -> ComparisonOut:
     out = ComparisonOut.model_validate(comparison)
     out.job_id = job.id if job else None
+    out.detection = DetectionOut(**detection_info(comparison, job))
     return out
 
 
@@ -60,6 +69,9 @@ def detection_feature(detection: Detection) -> dict[str, Any]:
             "score": detection.score,
             "method": detection.method,
             "model_version": detection.model_version,
+            # 95 % intervals of area and volumes and the LoD over the polygon; None where the
+            # method gives none (cnn).
+            "uncertainty": detection.uncertainty,
             "feedback": feedback_summary(detection),
         },
     }

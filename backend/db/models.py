@@ -237,6 +237,10 @@ class Detection(Base):
     method: Mapped[str] = mapped_column(String(32))
     # "name@version" of the detection model (cnn method); NULL for the threshold method.
     model_version: Mapped[str | None] = mapped_column(String(200))
+    # The feature's 95 % intervals and LoD, as the threshold and scored methods give them:
+    # {"area_m2_ci95": [low, high], "volume_loss_m3_ci95": [...], "volume_gain_m3_ci95":
+    # [...], "lod_m": median LoD95 over the polygon}; NULL where the method has none (cnn).
+    uncertainty: Mapped[dict[str, Any] | None]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     comparison: Mapped[Comparison] = relationship(back_populates="detections")

@@ -213,8 +213,26 @@ def _detection_feature(
             "max_abs_dh_m": round(detection.max_abs_dh_m, 3),
             "score": round(detection.score, 4),
             "method": detection.method,
+            **_uncertainty_properties(detection.uncertainty),
         },
     }
+
+
+# Flat, always present (null where unknown): GIS clients (QGIS, OGR) read one typed column
+# per property, not nested objects, and infer the columns from the features they see.
+_INTERVALS = ("area_m2_ci95", "volume_loss_m3_ci95", "volume_gain_m3_ci95")
+
+
+def _uncertainty_properties(uncertainty: dict[str, Any] | None) -> dict[str, float | None]:
+    """The detection's 95 % intervals as `<name>_low`/`<name>_high`, and its LoD."""
+    values = uncertainty or {}
+    flat: dict[str, float | None] = {}
+    for name in _INTERVALS:
+        interval = values.get(name)
+        low, high = interval if interval else (None, None)
+        flat[f"{name}_low"], flat[f"{name}_high"] = low, high
+    flat["lod_m"] = values.get("lod_m")
+    return flat
 
 
 # --- queries ----------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session, aliased
 
 from backend.db.models import Comparison, JobState, Report, Site, StoredFile, Survey
 from backend.services import alerts
+from backend.services.comparisons import detection_model, stage_results
 from backend.storage import LocalStorage, file_digest
 from worker.reports import Change, DetectionRow, ReportData, build_report
 
@@ -208,7 +209,7 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         parameters=dict(comparison.parameters or {}),
         processing=_processing(comparison),
         model_version=model_version(
-            comparison.method, ((comparison.parameters or {}).get("cnn") or {}).get("model")
+            comparison.method, detection_model(comparison, stage_results(comparison, None))
         ),
         notes=notes,
     )

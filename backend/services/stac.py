@@ -37,6 +37,7 @@ ASSET_ROLES = {
     "post_coregistered": (["data"], "Post DSM co-registered onto the pre DSM (COG, metres)"),
     "dh": (["data"], "Δh = post − pre (COG, metres)"),
     "significance": (["data"], "Significant change: 1 loss, 2 gain (COG)"),
+    "lod": (["data"], "Per-pixel level of detection, LoD95 (COG, metres)"),
     "detections": (["data"], "Detected landslides (GeoJSON, WGS84)"),
 }
 

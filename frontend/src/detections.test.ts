@@ -1,5 +1,6 @@
 import { describe, expect, it } from "vitest";
-import { detectionPopupHtml, detectionStyle, scoreColor } from "./detections";
+import { detectionPopupHtml, detectionStyle, scoreColor, withInterval } from "./detections";
+import { formatArea, formatVolume } from "./format";
 import type { DetectionProperties } from "./types";
 
 const props: DetectionProperties = {
@@ -26,6 +27,36 @@ describe("detections", () => {
     for (const text of ["1,235 m²", "2,100 m³", "15.3 m³", "4.32 m", "cnn", "slidenet-default@1", "confirmed landslide by maria, 2 Jul 2026, 10:00"]) {
       expect(html).toContain(text);
     }
+  });
+
+  it("popup gives the 95 % intervals and the LoD when the method has them", () => {
+    const scored: DetectionProperties = {
+      ...props,
+      area_m2: 812,
+      volume_loss_m3: 300,
+      method: "scored",
+      model_version: "scorer-default@1",
+      uncertainty: {
+        area_m2_ci95: [760, 870],
+        volume_loss_m3_ci95: [250.4, 351],
+        volume_gain_m3_ci95: [0, 40],
+        lod_m: 0.123,
+      },
+    };
+    const html = detectionPopupHtml(3, scored, "UTC");
+    for (const text of ["812 m² (95 %: 760–870 m²)", "300 m³ (95 %: 250–351 m³)", "15.3 m³ (95 %: 0–40 m³)", "LoD (95 %)", "0.12 m", "scorer-default@1"]) {
+      expect(html).toContain(text);
+    }
+    // cnn detections have no intervals: the values alone, no LoD row.
+    const cnn = detectionPopupHtml(4, { ...props, uncertainty: null }, "UTC");
+    expect(cnn).not.toContain("95 %");
+    expect(cnn).toContain("1,235 m²");
+  });
+
+  it("says the unit of an interval once, twice when its ends differ", () => {
+    expect(withInterval(812, [760, 870], formatArea)).toBe("812 m² (95 %: 760–870 m²)");
+    expect(withInterval(99_000, [90_000, 120_000], formatArea)).toBe("99,000 m² (95 %: 90,000 m²–12 ha)");
+    expect(withInterval(5, undefined, formatVolume)).toBe("5 m³");
   });
 
   it("says a threshold detection has no model, and escapes text", () => {

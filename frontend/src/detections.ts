@@ -45,13 +45,29 @@ export function cellStyle(): PathStyle {
 
 const VERDICT_WORDS = { confirmed: "confirmed landslide", false_alarm: "false alarm" } as const;
 
+/** "812 m² (95 %: 760–870 m²)": the value and its 95 % interval, the unit said once when
+ * both ends share it; the value alone when the method gives no interval (cnn). */
+export function withInterval(
+  value: number,
+  interval: [number, number] | null | undefined,
+  format: (v: number) => string,
+): string {
+  if (!interval) return format(value);
+  const [low, high] = interval.map(format);
+  const unit = / \S+$/.exec(high)?.[0];
+  const lowText = unit && low.endsWith(unit) ? low.slice(0, -unit.length) : low;
+  return `${format(value)} (95 %: ${lowText}–${high})`;
+}
+
 /** The popup's table: every number with its unit; text escaped. */
 export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone: string): string {
+  const u = p.uncertainty ?? {};
   const rows: Array<[string, string]> = [
-    ["Area", formatArea(p.area_m2)],
-    ["Volume lost", formatVolume(p.volume_loss_m3)],
-    ["Volume gained", formatVolume(p.volume_gain_m3)],
+    ["Area", withInterval(p.area_m2, u.area_m2_ci95, formatArea)],
+    ["Volume lost", withInterval(p.volume_loss_m3, u.volume_loss_m3_ci95, formatVolume)],
+    ["Volume gained", withInterval(p.volume_gain_m3, u.volume_gain_m3_ci95, formatVolume)],
     ["Max |Δh|", formatMetres(p.max_abs_dh_m)],
+    ...(u.lod_m != null ? [["LoD (95 %)", formatMetres(u.lod_m)] as [string, string]] : []),
     ["Score", p.score.toFixed(2)],
     ["Method", p.method],
     ["Model version", p.model_version ?? (p.method === "threshold" ? "none (threshold on Δh)" : "unknown")],

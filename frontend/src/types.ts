@@ -88,6 +88,26 @@ export interface Comparison {
   created_at: string;
   finished_at: string | null;
   job_id: number | null;
+  detection?: ComparisonDetection | null;
+}
+
+/** How a comparison detects (ComparisonOut.detection): LoD fields null until its
+ * difference stage has run, model null for threshold (and for scored until it scored). */
+export interface ComparisonDetection {
+  method: string;
+  lod_m: number | null;
+  lod_p10_m: number | null;
+  lod_p90_m: number | null;
+  error_model: string | null;
+  model: string | null;
+}
+
+/** One detection method (GET /api/v1/methods). */
+export interface DetectionMethod {
+  name: string;
+  summary: string;
+  stages: string[];
+  default: boolean;
 }
 
 export interface FeedbackSummary {
@@ -107,7 +127,16 @@ export interface DetectionProperties {
   score: number;
   method: string;
   model_version: string | null;
+  /** 95 % intervals and the LoD over the polygon; null where the method has none (cnn). */
+  uncertainty?: DetectionUncertainty | null;
   feedback: FeedbackSummary;
+}
+
+export interface DetectionUncertainty {
+  area_m2_ci95?: [number, number];
+  volume_loss_m3_ci95?: [number, number];
+  volume_gain_m3_ci95?: [number, number];
+  lod_m?: number;
 }
 
 export type DetectionFeature = GeoJSON.Feature<GeoJSON.Polygon | GeoJSON.MultiPolygon, DetectionProperties> & {

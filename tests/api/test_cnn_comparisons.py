@@ -1,5 +1,5 @@
-"""The cnn method over the API: the default method, its products, its detections' model
-version, and the model registry (GET /models)."""
+"""The cnn method over the API: chosen by name, its products, its detections' model version,
+and the model registry (GET /models)."""
 
 from pathlib import Path
 
@@ -42,16 +42,27 @@ def test_cnn_comparison_stores_probability_cells_and_model_version(
     post = upload_dsm(client, auth, site, mound_files[1], "2026-07-01T10:00:00Z")
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
-        json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "parameters": QUICK},
+        json={
+            "pre_survey_id": pre["id"],
+            "post_survey_id": post["id"],
+            "method": "cnn",
+            "parameters": QUICK,
+        },
         headers=auth,
     ).json()
     assert created["comparison"]["method"] == "cnn"
+    # The model is known from the start: the registry's default, kept in the parameters.
+    queued = created["comparison"]
+    assert queued["detection"]["model"] == queued["parameters"]["cnn"]["model"]
     run_job_inline(created["job"]["id"])
     cid = created["comparison"]["id"]
     comparison = client.get(f"/api/v1/sites/{site}/comparisons/{cid}", headers=auth).json()
     assert comparison["status"] == "succeeded", comparison
     reference = comparison["parameters"]["cnn"]["model"]
     assert comparison["summary"]["stages"]["detect"]["model"] == reference
+    detection = comparison["detection"]
+    assert detection["method"] == "cnn" and detection["model"] == reference
+    assert detection["lod_m"] == comparison["summary"]["stages"]["difference"]["lod_m"] > 0
 
     features = client.get(
         f"/api/v1/sites/{site}/comparisons/{cid}/detections", headers=auth
@@ -60,11 +71,12 @@ def test_cnn_comparison_stores_probability_cells_and_model_version(
     props = features[0]["properties"]
     assert props["method"] == "cnn" and props["model_version"] == reference
     assert props["area_m2"] > 5 and props["volume_loss_m3"] > 0.5 and 0.7 <= props["score"] <= 1
+    assert props["uncertainty"] is None  # the cnn method gives no intervals
 
     products = client.get(f"/api/v1/sites/{site}/comparisons/{cid}/products", headers=auth).json()
     kinds = {p["kind"]: p for p in products}
     assert set(kinds) == {
-        "post_coregistered", "dh", "significance", "probability", "cells", "detections",
+        "post_coregistered", "dh", "significance", "lod", "probability", "cells", "detections",
     }  # fmt: skip
     probability = kinds["probability"]
     assert probability["file"]["media_type"].endswith("profile=cloud-optimized")

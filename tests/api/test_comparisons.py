@@ -11,6 +11,7 @@ from sqlalchemy import create_engine, text
 
 from backend.db.models import Survey
 from tests.api_helpers import run_job_inline, upload_dsm
+from worker.pipeline.comparison import default_method, stages_for
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
 
@@ -49,13 +50,11 @@ def test_creating_a_comparison_queues_its_first_stage(
     assert response.status_code == 202, response.text
     body = response.json()
     assert body["comparison"]["status"] == "queued"
-    # The detection model ships with the package: the cnn method is the default, and the
-    # comparison records which model it will run.
-    assert body["comparison"]["method"] == "cnn"
-    assert body["comparison"]["parameters"]["cnn"]["model"].startswith("slidenet-default@")
+    # No method given: the library's default, the one the CLI and the page use too.
+    assert body["comparison"]["method"] == default_method()
     job = body["job"]
     assert job["state"] == "queued"
-    assert [s["stage"] for s in job["stages"]] == ["align", "coregister", "difference", "detect"]
+    assert [s["stage"] for s in job["stages"]] == list(stages_for(default_method()))
     assert all(s["state"] == "pending" and s["progress"] == 0 for s in job["stages"])
     messages = broker_messages(app)
     assert len(messages) == 1
@@ -106,7 +105,33 @@ def test_finished_comparison_serves_detections_and_products(
     assert props["method"] == "threshold" and props["model_version"] is None
     assert props["area_m2"] > 0 and props["volume_loss_m3"] > 0 and props["volume_gain_m3"] > 0
     assert 0 <= props["score"] <= 1
+    # The 95 % intervals and the LoD of the polygon are kept with the detection.
+    uncertainty = props["uncertainty"]
+    assert set(uncertainty) == {
+        "area_m2_ci95",
+        "volume_loss_m3_ci95",
+        "volume_gain_m3_ci95",
+        "lod_m",
+    }
+    for name in ("area_m2", "volume_loss_m3", "volume_gain_m3"):
+        low, high = uncertainty[f"{name}_ci95"]
+        assert 0 <= low <= props[name] <= high, (name, low, props[name], high)
+    assert uncertainty["area_m2_ci95"][0] < uncertainty["area_m2_ci95"][1]
+    assert uncertainty["lod_m"] > 0
     assert comparison["summary"]["detections"] == 1
+    # The comparison says how it detected: method, the LoD applied, no model (threshold).
+    difference = job["stages"][2]["result"]
+    detection = comparison["detection"]
+    assert detection == {
+        "method": "threshold",
+        "lod_m": difference["lod_m"],
+        "lod_p10_m": difference["lod_p10_m"],
+        "lod_p90_m": difference["lod_p90_m"],
+        "error_model": difference["error_model"],
+        "model": None,
+    }
+    assert 0 < detection["lod_p10_m"] <= detection["lod_m"] <= detection["lod_p90_m"]
+    assert detection["error_model"] in ("heteroscedastic", "uniform")
 
     products = client.get(
         f"/api/v1/sites/{site_id}/comparisons/{comparison_id}/products", headers=auth
@@ -115,11 +140,15 @@ def test_finished_comparison_serves_detections_and_products(
         "post_coregistered",
         "dh",
         "significance",
+        "lod",
         "detections",
     }
     dh = next(p for p in products if p["kind"] == "dh")
     assert dh["crs"] == "EPSG:32632"
     assert client.get(dh["download_url"], headers=auth).content[:4] in (b"II*\x00", b"MM\x00*")
+    lod = next(p for p in products if p["kind"] == "lod")  # a COG, like dh
+    assert lod["crs"] == "EPSG:32632"
+    assert lod["file"]["media_type"].endswith("profile=cloud-optimized")
 
 
 @pytest.mark.parametrize(
@@ -130,6 +159,11 @@ def test_finished_comparison_serves_detections_and_products(
             {"method": "cnn", "parameters": {"cnn": {"model": "/etc/passwd"}}},
             422,
             "no registered detection model '/etc/passwd'",
+        ),
+        (
+            {"method": "scored", "parameters": {"score": {"scorer": "/etc/passwd"}}},
+            422,
+            "cannot be set over the API",
         ),
         ({"post_survey_id": "pre"}, 422, "same survey"),
         ({"post_survey_id": 999}, 422, "post survey 999 does not exist"),

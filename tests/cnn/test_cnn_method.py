@@ -37,7 +37,7 @@ CNN_FILES = {
 
 
 def test_stages_per_method():
-    assert METHODS == ("threshold", "cnn")
+    assert METHODS == ("scored", "threshold", "cnn")
     assert stages_for("threshold") == STAGES == ("align", "coregister", "difference", "vectorize")
     assert stages_for("cnn") == ("align", "coregister", "difference", "detect")
     with pytest.raises(InputError, match="unknown detection method"):

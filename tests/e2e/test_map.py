@@ -9,6 +9,7 @@ from playwright.sync_api import Page, Request, Route, expect
 
 from tests.e2e.conftest import USER, App, shot
 from tests.video_helpers import moov_before_mdat
+from worker.pipeline.comparison import METHODS, default_method
 from worker.simulator.dsm_pair import DsmPairPaths
 
 JOB_TIMEOUT_MS = 180_000
@@ -59,6 +60,15 @@ def test_sign_in_upload_compare_and_read_the_map(
 
     page.get_by_label("Before (pre)").select_option(label="June flight · 1 Jun 2026")
     page.get_by_label("After (post)").select_option(label="July flight · 1 Jul 2026")
+    # The form's method is the API's default (the library's, the CLI's), with its one line.
+    default = api_default_method(page, app_server)
+    assert default["name"] == default_method()
+    method = page.get_by_label("Detection method")
+    expect(method).to_have_value(default["name"])
+    expect(page.locator("#method-summary")).to_have_text(default["summary"])
+    assert method.locator("option").all_inner_texts() == [
+        f"{name} (default)" if name == default["name"] else name for name in METHODS
+    ]
     page.get_by_role("button", name="Compare").click()
     job = page.locator(".job").first
     expect(job).to_contain_text("coregister")
@@ -80,12 +90,17 @@ def test_sign_in_upload_compare_and_read_the_map(
     page.wait_for_timeout(500)
     shot(page, "map-detections", "map-detections")
 
-    # A detection's popup: area, volumes, max |Δh|, method, model version; then a verdict.
+    # The comparison says how it detected: the LoD it applied (and a model, if any).
+    expect(page.locator(".comparison-detection").first).to_contain_text("LoD")
+
+    # A detection's popup: area and volumes with their 95 % intervals, max |Δh|, method,
+    # model version; then a verdict.
     detection.click()
     popup = page.locator(".leaflet-popup .popup")
     expect(popup).to_contain_text("m²")
-    for text in ("Volume lost", "m³", "Max |Δh|", "Method", "threshold", "Model version"):
+    for text in ("Volume lost", "m³", "95 %:", "Max |Δh|", "Method", default["name"]):
         expect(popup).to_contain_text(text)
+    expect(popup).to_contain_text("Model version")
     shot(page, "detection-popup", "map-popup")
     popup.get_by_role("button", name="Confirm landslide").click()
     expect(popup.locator("[data-role=verdict]")).to_contain_text("confirmed landslide by maria")
@@ -233,6 +248,18 @@ def test_refusals_in_plain_words_and_a_tablet_layout(
         )
     finally:
         context.close()
+
+
+def api_default_method(page: Page, app: App) -> dict:
+    """The default of GET /api/v1/methods, asked with the page's own token."""
+    token = page.evaluate("() => localStorage.getItem('slidewatch.token')")
+    response = page.request.get(
+        app.url + "/api/v1/methods", headers={"Authorization": f"Bearer {token}"}
+    )
+    assert response.ok, response.text()
+    defaults = [m for m in response.json() if m["default"]]
+    assert len(defaults) == 1, defaults
+    return defaults[0]
 
 
 def zoom_to_site(page: Page) -> None:

@@ -97,6 +97,19 @@ def test_single_items_and_missing_ones(client: TestClient, auth: dict, seeded: d
     site = client.get(f"/ogc/collections/sites/items/{seeded['site']}", headers=auth).json()
     assert site["geometry"]["type"] == "Polygon" and site["properties"]["surveys"] == 3
     assert client.get("/ogc/collections/detections/items/99999", headers=auth).status_code == 404
+    # Intervals as flat columns, for GIS clients; null where the detection has none.
+    july = feature.json()["properties"]
+    assert july["area_m2_ci95_low"] is None and july["lod_m"] is None
+    august = client.get(
+        "/ogc/collections/detections/items",
+        params={"datetime": "2026-08-01T10:00:00Z", "limit": 1},
+        headers=auth,
+    ).json()["features"][0]["properties"]
+    assert august["area_m2_ci95_low"] <= august["area_m2"] <= august["area_m2_ci95_high"]
+    assert august["volume_loss_m3_ci95_low"] <= august["volume_loss_m3"]
+    assert august["volume_loss_m3"] <= august["volume_loss_m3_ci95_high"]
+    assert (august["volume_gain_m3_ci95_low"], august["volume_gain_m3_ci95_high"]) == (36, 44)
+    assert august["lod_m"] == 0.12
     missing = client.get("/ogc/collections/landslides/items", headers=auth)
     assert missing.status_code == 404 and "sites, surveys, detections" in missing.json()["detail"]
 

@@ -59,7 +59,8 @@ def test_products_are_cogs_with_crs_and_nodata(client: TestClient, auth: dict, i
     products = products.json()
     products += client.get(f"/api/v1/sites/{site}/surveys/{survey}/products", headers=auth).json()
     rasters = {p["kind"]: p for p in products if p["kind"] != "detections"}
-    assert set(rasters) == {"dsm", "dh", "significance", "post_coregistered"}
+    # lod: the per-pixel LoD95 of the difference stage, a COG in metres like dh.
+    assert set(rasters) == {"dsm", "dh", "significance", "lod", "post_coregistered"}
     for kind, product in rasters.items():
         data = client.get(product["download_url"], headers=auth).content
         with rasterio.MemoryFile(data) as memory, memory.open() as src:

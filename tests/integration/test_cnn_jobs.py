@@ -32,11 +32,16 @@ def test_cnn_finds_the_planted_slide_and_nothing_without_change(
         post = upload_dsm(client, auth, site, post_path, "2026-07-01T10:00:00Z")
         created = client.post(
             f"/api/v1/sites/{site}/comparisons",
-            json={"pre_survey_id": pre["id"], "post_survey_id": post["id"], "parameters": QUICK},
+            json={
+                "pre_survey_id": pre["id"],
+                "post_survey_id": post["id"],
+                "method": "cnn",
+                "parameters": QUICK,
+            },
             headers=auth,
         )
         assert created.status_code == 202, created.text
-        assert created.json()["comparison"]["method"] == "cnn"  # the default
+        assert created.json()["comparison"]["method"] == "cnn"
         jobs[label] = created.json()["job"]
     found = {}
     for label, job in jobs.items():

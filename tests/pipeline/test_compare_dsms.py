@@ -22,7 +22,7 @@ from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 LAYOUT = {
     "align": ["pre_aligned.tif", "post_aligned.tif"],
     "coregister": ["post_coregistered.tif", "stable_mask.tif"],
-    "difference": ["dh.tif", "significance.tif"],
+    "difference": ["dh.tif", "significance.tif", "lod.tif", "error_model.json"],
     "vectorize": ["detections.geojson"],
 }
 ALL_FILES = [name for names in LAYOUT.values() for name in names]

@@ -1,4 +1,6 @@
-"""difference: dh, LoD95 from stable-terrain NMAD, and the significance coding."""
+"""difference: dh, the per-pixel LoD95 of the error model, and the significance coding."""
+
+import json
 
 import numpy as np
 import pytest
@@ -36,11 +38,12 @@ def _run(tmp_path, options=None, stable_mask_path=None):
     )
 
 
-def test_lod95_is_1_96_times_nmad_and_significance_is_coded(tmp_path):
-    result = _run(tmp_path)
+def test_uniform_lod95_is_1_96_times_nmad_and_significance_is_coded(tmp_path):
+    result = _run(tmp_path, DifferenceOptions(error_model="uniform"))
+    assert result.error_model == "uniform"
     assert result.nmad_m == pytest.approx(0.1, rel=0.05)
     assert result.lod95_m == pytest.approx(1.96 * result.nmad_m)
-    assert result.lod_m == result.lod95_m
+    assert result.lod_m == pytest.approx(result.lod95_m)
     assert abs(result.median_dh_m) < 0.01
     with rasterio.open(tmp_path / "sig.tif") as src:
         sig = src.read(1)
@@ -55,11 +58,25 @@ def test_lod95_is_1_96_times_nmad_and_significance_is_coded(tmp_path):
     assert dh[30, 30] == pytest.approx(-2.0, abs=0.5)
 
 
+def test_heteroscedastic_lod_on_uniform_noise_matches_the_nmad(tmp_path):
+    result = _run(tmp_path)
+    assert result.error_model == "heteroscedastic"
+    # White noise of 0.1 m on flat ground: every pixel's LoD is about 1.96 * 0.1 m.
+    assert result.lod_m == pytest.approx(0.196, rel=0.05)
+    assert result.lod_p10_m > 0.8 * 0.196 and result.lod_p90_m < 1.2 * 0.196
+    lod, _ = read_elevation(tmp_path / "lod.tif")
+    assert np.all(np.isnan(lod[180:, 180:]))
+    sig = rasterio.open(tmp_path / "sig.tif").read(1)
+    noise = sig[50:90, 50:140]
+    assert 0.02 < np.count_nonzero(noise) / noise.size < 0.08
+    assert json.loads((tmp_path / "error_model.json").read_text())["stable_pixels"] > 30_000
+
+
 def test_floor_and_fixed_lod(tmp_path):
     floored = _run(tmp_path, DifferenceOptions(min_lod_m=0.5))
     assert floored.lod_m == 0.5 and floored.lod95_m < 0.5
     fixed = _run(tmp_path, DifferenceOptions(lod_m=1.0))
-    assert fixed.lod_m == 1.0
+    assert fixed.lod_m == 1.0 and fixed.error_model == "fixed"
     assert fixed.significant_loss_pixels == 400 and fixed.significant_gain_pixels == 400
 
 
@@ -68,7 +85,8 @@ def test_stable_mask_selects_the_noise_estimate(tmp_path):
     mask[:, :100] = 1
     mask[15:45, 15:45] = 0  # the co-registration excluded the loss and its fringe
     write_geotiff(tmp_path / "stable.tif", mask, TRANSFORM, "EPSG:32632")
-    result = _run(tmp_path, stable_mask_path=tmp_path / "stable.tif")
+    options = DifferenceOptions(error_model="uniform")
+    result = _run(tmp_path, options, stable_mask_path=tmp_path / "stable.tif")
     assert result.stable_pixels == 200 * 100 - 30 * 30
     assert result.nmad_m == pytest.approx(0.1, rel=0.05)
 

@@ -38,9 +38,13 @@ def test_geojson_is_rfc7946(slide_run):
     assert feature["id"] == 1 and feature["type"] == "Feature"
     assert set(feature["properties"]) == {
         "area_m2",
+        "area_m2_ci95",
         "volume_loss_m3",
+        "volume_loss_m3_ci95",
         "volume_gain_m3",
+        "volume_gain_m3_ci95",
         "max_abs_dh_m",
+        "lod_m",
         "score",
         "method",
     }

@@ -10,7 +10,13 @@ from pathlib import Path
 import click
 
 from worker.pipeline.atomic import atomic_path
-from worker.pipeline.comparison import METHODS, ComparisonOptions, compare_dsms, default_method
+from worker.pipeline.comparison import (
+    METHOD_SUMMARIES,
+    METHODS,
+    ComparisonOptions,
+    compare_dsms,
+    default_method,
+)
 from worker.pipeline.errors import InputError
 
 EXIT_INPUT_ERROR = 2
@@ -42,8 +48,8 @@ EXIT_INPUT_ERROR = 2
     "--method",
     type=click.Choice(METHODS),
     default=None,
-    help="cnn: the detection model (the default when one is installed); threshold: Δh "
-    "beyond the level of detection.",
+    help="Default: scored when its scorer ships, else threshold (the API's and the map's "
+    "default too). " + " ".join(f"{name}: {METHOD_SUMMARIES[name]}" for name in METHODS),
 )
 @click.option(
     "--model",
@@ -63,7 +69,8 @@ EXIT_INPUT_ERROR = 2
     "--lod",
     type=float,
     default=None,
-    help="Fixed level of detection in metres (default: 1.96 x stable-terrain NMAD).",
+    help="Fixed level of detection in metres (default: the per-pixel LoD95 of the "
+    "error model fitted on stable terrain).",
 )
 def detect(
     pre_path: Path,
@@ -84,6 +91,7 @@ def detect(
         options.cnn.model = model
     if min_area is not None:
         options.vectorize.min_area_m2 = min_area
+        options.score.min_area_m2 = min_area
         options.cnn.min_area_m2 = min_area
     if lod is not None:
         options.difference.lod_m = lod

@@ -1,5 +1,5 @@
-"""The comparison job: align, co-register, difference, then vectorize (threshold method) or
-detect (cnn method) two survey DSMs."""
+"""The comparison job: align, co-register, difference, then score (scored method), vectorize
+(threshold method) or detect (cnn method) two survey DSMs."""
 
 import json
 from datetime import UTC, datetime
@@ -15,8 +15,10 @@ from backend.services import alerts, models
 from worker.jobs.products import COG_MEDIA_TYPE, StorageJob, register_product
 from worker.pipeline import comparison as pipeline
 from worker.pipeline.cog import RasterRole, write_cog
+from worker.pipeline.difference import LOD_FILE
 from worker.pipeline.progress import ProgressFn
 
+_DETECTIONS = {"detections": (pipeline.DETECTIONS, "application/geo+json")}
 # Files of a stage that become downloadable products, by product kind. Rasters are served as
 # Cloud-Optimized GeoTIFFs made from the stage's file (role: how overviews are resampled).
 STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -24,23 +26,29 @@ STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
     "difference": {
         "dh": ("dh.tif", "image/tiff"),
         "significance": ("significance.tif", "image/tiff"),
+        "lod": (LOD_FILE, "image/tiff"),
     },
-    "vectorize": {"detections": ("detections.geojson", "application/geo+json")},
+    "vectorize": _DETECTIONS,
+    "score": _DETECTIONS,
     "detect": {
         "probability": ("probability.tif", "image/tiff"),
         "cells": ("cells.geojson", "application/geo+json"),
-        "detections": ("detections.geojson", "application/geo+json"),
+        **_DETECTIONS,
     },
 }
 RASTER_ROLES: dict[str, RasterRole] = {
     "post_coregistered": RasterRole.elevation,
     "dh": RasterRole.elevation,
     "significance": RasterRole.mask,
-    # A continuous 0-1 field: overviews average it, as elevations.
+    # Continuous fields in metres or 0-1: overviews average them, as elevations.
+    "lod": RasterRole.elevation,
     "probability": RasterRole.elevation,
 }
 # Stages whose detections.geojson becomes the comparison's Detection rows.
-DETECTION_STAGES = ("vectorize", "detect")
+DETECTION_STAGES = ("vectorize", "score", "detect")
+# Properties of a detection feature kept together in Detection.uncertainty (threshold and
+# scored methods; the cnn method's features have none of them).
+UNCERTAINTY_KEYS = ("area_m2_ci95", "volume_loss_m3_ci95", "volume_gain_m3_ci95", "lod_m")
 
 
 def comparison_folder(comparison_id: int) -> str:
@@ -138,6 +146,7 @@ class ComparisonJob(StorageJob):
                     score=props["score"],
                     method=props.get("method", comparison.method),
                     model_version=props.get("model"),
+                    uncertainty=uncertainty_of(props),
                 )
             )
 
@@ -168,6 +177,12 @@ class ComparisonJob(StorageJob):
             comparison.status = JobState.failed
             comparison.error = reason
             comparison.finished_at = datetime.now(UTC)
+
+
+def uncertainty_of(props: dict[str, Any]) -> dict[str, Any] | None:
+    """The feature's intervals and LoD, None when it has none of them (cnn)."""
+    kept = {key: props[key] for key in UNCERTAINTY_KEYS if props.get(key) is not None}
+    return kept or None
 
 
 def geometry_bbox(geometry: dict[str, Any]) -> tuple[float, float, float, float]:

@@ -2,10 +2,12 @@
 
 The stages depend on the detection method (`stages_for(method)`):
 
-    threshold   align -> coregister -> difference -> vectorize
+    scored      align -> coregister -> difference -> score      (the default)
+    threshold   align -> coregister -> difference -> vectorize  (the LoD method)
     cnn         align -> coregister -> difference -> detect
 
 `STAGES` is the threshold method's list (kept for callers that predate the cnn method).
+`METHOD_SUMMARIES` says in one line what each method does (the API and the page show it).
 
 Each stage reads only the caller's two DSMs or files that earlier stages wrote into
 `work_dir`, and overwrites its own outputs atomically, so a stage can be re-run on its
@@ -17,7 +19,10 @@ own (one Celery task per stage). Layout of `work_dir`:
     stable_mask.tif        coregister   uint8: 1 stable terrain, 0 excluded, 255 nodata
     dh.tif                 difference   post - pre in metres (float32, -9999)
     significance.tif       difference   uint8: 0 none, 1 loss, 2 gain, 255 nodata
+    lod.tif                difference   per-pixel LoD95 in metres (float32, -9999)
+    error_model.json       difference   sigma_dh(slope, curvature) and the variogram
     detections.geojson     vectorize    FeatureCollection, WGS84 lon/lat (threshold)
+    detections.geojson     score        scored candidates, WGS84 lon/lat (scored)
     probability.tif        detect       per-pixel landslide probability, COG (cnn)
     cells.geojson          detect       positive 32-pixel cells, WGS84 (cnn)
     detections.geojson     detect       merged landslide polygons, WGS84 (cnn)
@@ -37,23 +42,34 @@ from pathlib import Path
 from typing import Any
 
 from worker.pipeline.align import AlignOptions, align
-from worker.pipeline.cnn.options import CnnOptions, default_model_path
+from worker.pipeline.cnn.options import CnnOptions
 from worker.pipeline.coregister import CoregisterOptions, coregister
 from worker.pipeline.difference import DifferenceOptions, difference
 from worker.pipeline.errors import InputError, PipelineError
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.scorer import shipped_scorer_available
+from worker.pipeline.scoring import ScoreOptions, score_candidates
 from worker.pipeline.vectorize import VectorizeOptions, vectorize
 
-METHODS = ("threshold", "cnn")
+METHODS = ("scored", "threshold", "cnn")
+METHOD_SUMMARIES = {
+    "scored": "Significant change (per-pixel LoD and area tests), each candidate scored as a "
+    "landslide probability by a calibrated model; trees and buildings set aside.",
+    "threshold": "The LoD method: every change beyond its per-pixel level of detection "
+    "(LoD95 from slope and curvature), larger than the errors' correlation.",
+    "cnn": "SlideNet, a neural network on both DSMs, trained on simulated survey flights.",
+}
 STAGES_BY_METHOD: dict[str, tuple[str, ...]] = {
+    "scored": ("align", "coregister", "difference", "score"),
     "threshold": ("align", "coregister", "difference", "vectorize"),
     "cnn": ("align", "coregister", "difference", "detect"),
 }
 STAGES = STAGES_BY_METHOD["threshold"]
-ALL_STAGES = ("align", "coregister", "difference", "vectorize", "detect")
+ALL_STAGES = ("align", "coregister", "difference", "vectorize", "score", "detect")
 __all__ = [
     "ALL_STAGES",
     "METHODS",
+    "METHOD_SUMMARIES",
     "STAGES",
     "STAGES_BY_METHOD",
     "ComparisonOptions",
@@ -79,11 +95,13 @@ _INPUTS = {
     "align": (),
     "coregister": (PRE_ALIGNED, POST_ALIGNED),
     "difference": (PRE_ALIGNED, POST_COREGISTERED, STABLE_MASK),
-    "vectorize": (DH, SIGNIFICANCE),
+    "vectorize": (DH, SIGNIFICANCE, PRE_ALIGNED, POST_COREGISTERED),
+    "score": (DH, SIGNIFICANCE, PRE_ALIGNED, POST_COREGISTERED),
     "detect": (PRE_ALIGNED, POST_COREGISTERED, DH, SIGNIFICANCE),
 }
 # Share of the whole comparison's progress bar taken by each stage (from measured times).
 _WEIGHTS = {
+    "scored": {"align": 0.1, "coregister": 0.6, "difference": 0.15, "score": 0.15},
     "threshold": {"align": 0.1, "coregister": 0.75, "difference": 0.08, "vectorize": 0.07},
     "cnn": {"align": 0.1, "coregister": 0.6, "difference": 0.06, "detect": 0.24},
 }
@@ -100,12 +118,13 @@ def stages_for(method: str) -> tuple[str, ...]:
 
 
 def default_method() -> str:
-    """ "cnn" when detection weights ship with this installation, else "threshold".
+    """ "scored" when its scorer ships with this installation, else "threshold".
 
+    The one default of the product: the CLI, the API and the page all use it.
     ComparisonOptions itself defaults to "threshold" so that stored parameters and
-    existing callers keep their meaning; product defaults (API, CLI) use this.
+    existing callers keep their meaning.
     """
-    return "cnn" if default_model_path() is not None else "threshold"
+    return "scored" if shipped_scorer_available() else "threshold"
 
 
 @dataclass
@@ -114,6 +133,7 @@ class ComparisonOptions:
     coregister: CoregisterOptions = field(default_factory=CoregisterOptions)
     difference: DifferenceOptions = field(default_factory=DifferenceOptions)
     vectorize: VectorizeOptions = field(default_factory=VectorizeOptions)
+    score: ScoreOptions = field(default_factory=ScoreOptions)
     cnn: CnnOptions = field(default_factory=CnnOptions)
     method: str = "threshold"
 
@@ -255,6 +275,17 @@ def run_stage(
             options.cnn,
             progress,
         )
+    elif stage == "score":
+        result = score_candidates(
+            work / DH,
+            work / SIGNIFICANCE,
+            work / PRE_ALIGNED,
+            work / POST_COREGISTERED,
+            work / DETECTIONS,
+            options.score,
+            progress,
+            method=options.method,
+        )
     else:
         result = vectorize(
             work / DH,
@@ -263,6 +294,8 @@ def run_stage(
             options.vectorize,
             options.method,
             progress,
+            pre_path=work / PRE_ALIGNED,
+            post_path=work / POST_COREGISTERED,
         )
     return result.to_dict()
 
@@ -272,7 +305,7 @@ def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 
     shift_m is the correction applied to the post DSM (see coregister.py).
     """
-    found = results.get("vectorize") or results.get("detect") or {}
+    found = results.get("vectorize") or results.get("score") or results.get("detect") or {}
     shift = results.get("coregister", {})
     return {
         "detections": int(found.get("detections", 0)),

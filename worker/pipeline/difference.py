@@ -1,13 +1,21 @@
-"""Elevation difference, its noise level on stable terrain, and significant change.
+"""Elevation difference, its error model, and significant change per pixel.
 
-dh = post - pre (metres, float32, nodata -9999). The level of detection is
-LoD95 = 1.96 * NMAD(dh on stable terrain), floored at `min_lod_m`, unless the user fixes
-`lod_m`. The significance mask (uint8) holds 0 no significant change, 1 loss
+dh = post - pre (metres, float32, nodata -9999). The error of dh is learned from the
+difference itself on stable terrain (error_model.py): sigma_dh per pixel from slope and
+curvature, and the correlation of the errors. The level of detection is per pixel,
+LoD95 = 1.96 * sigma_dh, floored at `min_lod_m`; `error_model="uniform"` gives the simple
+baseline, one sigma (the NMAD of stable terrain) for the whole raster; a fixed `lod_m`
+overrides both. The significance mask (uint8) holds 0 no significant change, 1 loss
 (dh < -LoD), 2 gain (dh > +LoD), 255 nodata.
+
+Outputs: `dh_out`, `significance_out` (its LOD_M tag is the median LoD), and beside them
+`lod.tif` (per-pixel LoD95, float32) and `error_model.json` (the fitted model, which the
+later stages use for minimum areas and the 95 % intervals of areas and volumes).
 """
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -15,27 +23,45 @@ from typing import Any
 
 import numpy as np
 
+from worker.pipeline.atomic import write_text_atomic
+from worker.pipeline.error_model import (
+    LOD_Z,
+    ErrorModel,
+    ErrorModelOptions,
+    fit_error_model,
+    terrain_attributes,
+)
 from worker.pipeline.errors import InputError
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import MASK_NODATA, read_elevation, write_geotiff
 
 NO_CHANGE, LOSS, GAIN = 0, 1, 2
-LOD_Z = 1.96  # two-sided 95 % for a normal error
+ERROR_MODELS = ("heteroscedastic", "uniform")
+LOD_FILE = "lod.tif"
+ERROR_MODEL_FILE = "error_model.json"
+__all__ = ["GAIN", "LOD_Z", "LOSS", "NO_CHANGE", "DifferenceOptions", "difference"]
 
 
 @dataclass
 class DifferenceOptions:
-    min_lod_m: float = 0.1  # floor: stable-terrain NMAD can understate real survey noise
-    lod_m: float | None = None  # fixed threshold; overrides the computed LoD95
-    outlier_nmad_factor: float = 4.0  # without a stable mask: exclusion of change pixels
+    error_model: str = "heteroscedastic"  # or "uniform": one NMAD for the whole raster
+    min_lod_m: float = 0.0  # floor of the per-pixel LoD
+    lod_m: float | None = None  # fixed threshold; overrides the error model's LoD
+    outlier_nmad_factor: float = 4.0  # uniform model: exclusion of change pixels
     min_stable_pixels: int = 1_000
+    attribute_scale_m: float = 0.1  # slope and curvature measured at this scale
 
 
 @dataclass
 class DifferenceResult:
-    nmad_m: float
-    lod95_m: float  # 1.96 * NMAD
-    lod_m: float  # the threshold applied (LoD95, floored, or the fixed lod_m)
+    nmad_m: float  # of stable terrain, one number (the uniform model's sigma)
+    lod95_m: float  # 1.96 * NMAD: the uniform model's LoD
+    lod_m: float  # the median per-pixel LoD applied (the fixed lod_m when given)
+    lod_p10_m: float
+    lod_p90_m: float
+    error_model: str  # heteroscedastic, uniform or fixed
+    correlation_length_m: float
+    sigma_by_slope: list[list[float]]  # [slope_deg, sigma_m] on the least curved ground
     median_dh_m: float  # on stable terrain
     stable_pixels: int
     significant_loss_pixels: int
@@ -56,12 +82,17 @@ def difference(
     stable_mask_path: Path | None = None,
     progress: ProgressFn = no_progress,
 ) -> DifferenceResult:
-    """Write dh and its significance mask; both inputs must be on the same grid.
+    """Write dh, its significance mask, the per-pixel LoD and the error model.
 
-    `stable_mask_path` is the co-registration's mask (1 = stable); without it, stable
-    terrain is every valid pixel within `outlier_nmad_factor` NMAD of the median.
+    Both inputs must be on the same grid. `stable_mask_path` (the co-registration's
+    mask, 1 = stable) only limits where stable terrain is looked for in the uniform
+    model; the heteroscedastic model finds its own (see error_model.py).
     """
     options = options or DifferenceOptions()
+    if options.error_model not in ERROR_MODELS:
+        raise InputError(
+            f"unknown error model {options.error_model!r}; available: {', '.join(ERROR_MODELS)}"
+        )
     start = time.perf_counter()
     pre, profile = read_elevation(pre_path)
     post, post_profile = read_elevation(post_path)
@@ -71,38 +102,104 @@ def difference(
     valid = np.isfinite(dh)
     if not valid.any():
         raise InputError("the pre and post DSMs have no valid elevations in common")
-    progress(0.3)
+    transform, crs = profile["transform"], profile["crs"]
+    pixel_size = float(abs(transform.a))
+    progress(0.1)
 
     stable = _stable_pixels(dh, valid, stable_mask_path, options)
     stable_values = dh[stable]
     median = float(np.median(stable_values))
     nmad = float(1.4826 * np.median(np.abs(stable_values - median)))
     lod95 = LOD_Z * nmad
-    lod = options.lod_m if options.lod_m is not None else max(lod95, options.min_lod_m)
-    if not lod > 0:
-        raise InputError("the level of detection must be a positive number of metres")
 
+    # Slope and curvature of the mean surface: both surveys see the same ground.
+    mean_surface = np.where(np.isfinite(pre), pre, post)
+    both = valid
+    mean_surface[both] = 0.5 * (pre[both] + post[both])
+    slope, curvature = terrain_attributes(mean_surface, pixel_size, options.attribute_scale_m)
+    del mean_surface
+    progress(0.3)
+    model = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
+    progress(0.7)
+    if options.lod_m is not None:
+        if not options.lod_m > 0:
+            raise InputError("the level of detection must be a positive number of metres")
+        lod = np.where(valid, np.float32(options.lod_m), np.nan).astype(np.float32)
+        kind = "fixed"
+    else:
+        lod = (LOD_Z * model.sigma(slope, curvature)).astype(np.float32)
+        lod = np.maximum(lod, np.float32(options.min_lod_m))
+        lod[~valid] = np.nan
+        kind = options.error_model
+    del slope, curvature
+    centred = dh - np.float32(model.median_dh_m if options.lod_m is None else 0.0)
     significance = np.full(dh.shape, MASK_NODATA, dtype=np.uint8)
     significance[valid] = NO_CHANGE
     with np.errstate(invalid="ignore"):
-        significance[valid & (dh < -lod)] = LOSS
-        significance[valid & (dh > lod)] = GAIN
-    progress(0.6)
-    transform, crs = profile["transform"], profile["crs"]
+        significance[valid & (centred < -lod)] = LOSS
+        significance[valid & (centred > lod)] = GAIN
+    del centred
+    lod_values = lod[valid]
+    lod_median = float(np.median(lod_values))
     write_geotiff(dh_out, dh, transform, crs)
-    write_geotiff(significance_out, significance, transform, crs, tags={"LOD_M": repr(lod)})
+    write_geotiff(Path(dh_out).parent / LOD_FILE, lod, transform, crs)
+    write_text_atomic(Path(dh_out).parent / ERROR_MODEL_FILE, json.dumps(model.to_dict(), indent=1))
+    write_geotiff(significance_out, significance, transform, crs, tags={"LOD_M": repr(lod_median)})
     progress(1.0)
     return DifferenceResult(
         nmad_m=nmad,
         lod95_m=lod95,
-        lod_m=float(lod),
-        median_dh_m=median,
-        stable_pixels=int(stable_values.size),
+        lod_m=lod_median,
+        lod_p10_m=float(np.percentile(lod_values, 10)),
+        lod_p90_m=float(np.percentile(lod_values, 90)),
+        error_model=kind,
+        correlation_length_m=float(model.correlation_length_m),
+        sigma_by_slope=[
+            [round(s, 1), round(v, 4)]
+            for s, v in zip(model.slope_centres_deg, model.sigma_table[0], strict=True)
+        ],
+        median_dh_m=float(model.median_dh_m),
+        stable_pixels=int(model.stable_pixels),
         significant_loss_pixels=int(np.count_nonzero(significance == LOSS)),
         significant_gain_pixels=int(np.count_nonzero(significance == GAIN)),
         pixel_area_m2=float(abs(transform.a * transform.e)),
         seconds=time.perf_counter() - start,
     )
+
+
+def read_error_model(work_dir: Path) -> ErrorModel:
+    """The error model the difference stage wrote into `work_dir`."""
+    return ErrorModel.from_dict(json.loads((Path(work_dir) / ERROR_MODEL_FILE).read_text()))
+
+
+def _error_model(
+    dh: np.ndarray,
+    slope: np.ndarray,
+    curvature: np.ndarray,
+    pixel_size: float,
+    stable: np.ndarray,
+    median: float,
+    nmad: float,
+    options: DifferenceOptions,
+) -> ErrorModel:
+    model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
+    if options.error_model == "heteroscedastic":
+        try:
+            return fit_error_model(dh, slope, curvature, pixel_size, model_options)
+        except ValueError as exc:
+            raise InputError(f"cannot learn the error of the difference: {exc}") from None
+    # The uniform baseline: one sigma everywhere; the variogram still gives intervals.
+    model = fit_error_model(
+        dh, slope, curvature, pixel_size, model_options, candidate_stable=stable
+    )
+    model.slope_centres_deg = [0.0]
+    model.curvature_centres = [0.0]
+    model.sigma_table = [[max(nmad, 1e-6)]]
+    model.counts = [[int(np.count_nonzero(stable))]]
+    model.median_dh_m = median
+    model.nmad_m = nmad
+    model.stable_pixels = int(np.count_nonzero(stable))
+    return model
 
 
 def _stable_pixels(

@@ -12,8 +12,9 @@ const FINAL = new Set(["succeeded", "failed"]);
 const STAGE_HELP: Record<string, string> = {
   align: "both DSMs onto one grid",
   coregister: "post DSM shifted onto pre",
-  difference: "Δh and its level of detection",
-  vectorize: "changes into polygons",
+  difference: "Δh and its per-pixel level of detection",
+  vectorize: "significant change into polygons",
+  score: "change candidates scored as landslides",
   detect: "detection model on the DSMs",
   ingest: "reading video and log",
   frames: "choosing frames",

@@ -6,7 +6,17 @@ import { renderTimeline } from "../components/timeline";
 import { UploadPanel } from "../components/uploadPanel";
 import { escapeHtml, formatArea, formatDate, formatMetres, formatVolume } from "../format";
 import { MapView } from "../map/mapView";
-import type { Comparison, ComparisonCreatedOut, DetectionFeature, Job, MapConfig, Site, Survey } from "../types";
+import { detectionText, methodOptionsHtml, methodSummary } from "../methods";
+import type {
+  Comparison,
+  ComparisonCreatedOut,
+  DetectionFeature,
+  DetectionMethod,
+  Job,
+  MapConfig,
+  Site,
+  Survey,
+} from "../types";
 import { header, wireSignOut } from "./header";
 
 interface State {
@@ -37,7 +47,8 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
             <label for="pre-survey">Before (pre)</label><select id="pre-survey" required></select>
             <label for="post-survey">After (post)</label><select id="post-survey" required></select>
             <label for="method">Detection method</label>
-            <select id="method"><option value="threshold">threshold on Δh</option><option value="cnn">CNN (detection model)</option></select>
+            <select id="method" aria-describedby="method-summary"></select>
+            <p class="muted method-summary" id="method-summary"></p>
             <button type="submit">Compare</button>
             <p class="error" role="alert" id="compare-error"></p>
           </form>
@@ -83,10 +94,12 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
               ? `${c.summary.detections ?? 0} detections, ${formatArea(c.summary.total_area_m2)}, loss ${formatVolume(c.summary.total_volume_loss_m3)}`
               : escapeHtml(c.error ?? "");
             const current = state.shown?.id === c.id ? "aria-current=\"true\"" : "";
+            const how = detectionText(c.detection);
             return `<li class="comparison status-${c.status}" data-comparison-id="${c.id}">
               <button type="button" data-show="${c.id}" ${current}>Show comparison ${c.id} on the map</button>
               <span>${escapeHtml(comparisonLabel(c, state.surveys, site.timezone))}</span>
-              <span class="muted">${c.method} · <span class="comparison-status">${c.status}</span> · ${summary}</span></li>`;
+              <span class="muted">${escapeHtml(c.method)} · <span class="comparison-status">${c.status}</span> · ${summary}</span>
+              ${how ? `<span class="muted comparison-detection">${escapeHtml(how)}</span>` : ""}</li>`;
           })
           .join("")
       : `<li class="muted">No comparison yet.</li>`;
@@ -123,6 +136,26 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     else renderComparisons();
   }
 
+  // The methods and their default come from the API (the library's list), never from here.
+  let methods: DetectionMethod[] = [];
+  const methodSelect = $("method") as HTMLSelectElement;
+  const showMethodSummary = () => {
+    $("method-summary").textContent = methodSummary(methods, methodSelect.value);
+  };
+  async function loadMethods(): Promise<void> {
+    try {
+      methods = await getJson<DetectionMethod[]>("methods");
+    } catch (e) {
+      // Without the list the server still applies its default: the form sends no method.
+      $("compare-error").textContent = `Detection methods unavailable: ${e instanceof ApiError ? e.message : "the server cannot be reached."}`;
+      return;
+    }
+    methodSelect.innerHTML = methodOptionsHtml(methods);
+    methodSelect.value = methods.find((m) => m.default)?.name ?? methods[0]?.name ?? "";
+    showMethodSummary();
+  }
+  methodSelect.addEventListener("change", showMethodSummary);
+
   const jobs = new JobsPanel($("jobs"), siteId, site.timezone, (job: Job) => {
     void (async () => {
       await loadSurveys();
@@ -146,7 +179,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       const created = await postJson<ComparisonCreatedOut>(`sites/${siteId}/comparisons`, {
         pre_survey_id: Number(($("pre-survey") as HTMLSelectElement).value),
         post_survey_id: Number(($("post-survey") as HTMLSelectElement).value),
-        method: ($("method") as HTMLSelectElement).value,
+        method: methodSelect.value || null, // none chosen: the server's default
       });
       state.comparisons.push(created.comparison);
       renderComparisons();
@@ -177,7 +210,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       })(),
     (job) => jobs.show([job]),
   );
-  await loadSurveys();
+  await Promise.all([loadMethods(), loadSurveys()]);
   await loadComparisons(true);
   jobs.show(await getJson<Job[]>(`sites/${siteId}/jobs`));
   map.invalidateSize();

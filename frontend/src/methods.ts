@@ -1,0 +1,38 @@
+// The detection methods as the API lists them (GET /api/v1/methods), and how a comparison
+// says it detected. The page has no list of its own: the library's is the only one, so
+// the form's default is the API's and the CLI's.
+
+import { escapeHtml, formatMetres } from "./format";
+import type { ComparisonDetection, DetectionMethod } from "./types";
+
+/** The `<option>`s of the method `<select>`, the default one selected and labelled so. */
+export function methodOptionsHtml(methods: DetectionMethod[]): string {
+  return methods
+    .map(
+      (m) =>
+        `<option value="${escapeHtml(m.name)}"${m.default ? " selected" : ""}>${escapeHtml(m.name)}${m.default ? " (default)" : ""}</option>`,
+    )
+    .join("");
+}
+
+export function methodSummary(methods: DetectionMethod[], name: string): string {
+  return methods.find((m) => m.name === name)?.summary ?? "";
+}
+
+/** "LoD 0.12 m (0.08–0.20 m, heteroscedastic) · model scorer-default@1": the level of
+ * detection the comparison applied and the model behind its detections. Empty before
+ * the difference stage has run and for a method without a model. */
+export function detectionText(detection: ComparisonDetection | null | undefined): string {
+  if (!detection) return "";
+  const parts: string[] = [];
+  if (detection.lod_m != null) {
+    const spread =
+      detection.lod_p10_m != null && detection.lod_p90_m != null
+        ? `${formatMetres(detection.lod_p10_m).replace(/ m$/, "")}–${formatMetres(detection.lod_p90_m)}`
+        : null;
+    const inside = [spread, detection.error_model].filter(Boolean).join(", ");
+    parts.push(`LoD ${formatMetres(detection.lod_m)}${inside ? ` (${inside})` : ""}`);
+  }
+  if (detection.model) parts.push(`model ${detection.model}`);
+  return parts.join(" · ");
+}

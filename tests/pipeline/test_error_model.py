@@ -1,0 +1,130 @@
+"""The error model of a DSM difference: sigma(slope), its correlation, and the coverage
+of the per-pixel LoD and of a polygon's 95 % intervals over seeded trials."""
+
+import numpy as np
+import pytest
+from rasterio.transform import from_origin
+from scipy import ndimage
+
+from worker.pipeline.change_regions import (
+    ChangeRasters,
+    RegionOptions,
+    describe_region,
+    label_regions,
+    significant_regions,
+)
+from worker.pipeline.difference import GAIN, LOSS
+from worker.pipeline.error_model import LOD_Z, fit_error_model, terrain_attributes
+
+PIXEL = 0.5
+
+
+def _valley(n: int = 400) -> np.ndarray:
+    """Slopes from flat to about 45 degrees across the raster."""
+    y, x = np.mgrid[0:n, 0:n] * PIXEL
+    return (0.006 * (x - 40) ** 2 + 2 * np.sin(y / 12)).astype(np.float32)
+
+
+def _correlated(rng: np.random.Generator, shape, sigma_px: float) -> np.ndarray:
+    field = ndimage.gaussian_filter(rng.normal(size=shape), sigma_px)
+    return field / field.std()
+
+
+def _true_sigma(slope_deg: np.ndarray) -> np.ndarray:
+    return 0.05 + 0.25 * np.tan(np.radians(slope_deg))
+
+
+def test_recovers_a_known_sigma_of_slope_within_10_percent():
+    rng = np.random.default_rng(3)
+    surface = _valley()
+    slope, curvature = terrain_attributes(surface, PIXEL)
+    noise = 0.6 * rng.normal(size=surface.shape) + 0.8 * _correlated(rng, surface.shape, 2)
+    dh = (noise * _true_sigma(slope)).astype(np.float32)
+    dh[100:140, 250:300] -= 3.0  # a landslide must not inflate its bins
+    model = fit_error_model(dh, slope, curvature, PIXEL)
+    sigma = model.sigma(slope, curvature)
+    ratios = []
+    for low in range(0, 45, 5):
+        band = (slope >= low) & (slope < low + 5)
+        band[95:145, 245:305] = False
+        if np.count_nonzero(band) > 2000:
+            ratios.append(float(np.median(sigma[band] / _true_sigma(slope[band]))))
+    assert len(ratios) >= 6
+    assert all(0.9 <= r <= 1.1 for r in ratios), ratios
+    # The errors' short correlation range: a 2-pixel gaussian is about 4 pixels wide.
+    assert PIXEL <= model.correlation_length_m <= 8 * PIXEL
+
+
+def test_per_pixel_lod_covers_95_percent_on_flat_and_steep_ground():
+    exceed = {"flat": [], "steep": []}
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        surface = _valley(300)
+        slope, curvature = terrain_attributes(surface, PIXEL)
+        dh = (rng.normal(size=surface.shape) * _true_sigma(slope)).astype(np.float32)
+        model = fit_error_model(dh, slope, curvature, PIXEL)
+        lod = LOD_Z * model.sigma(slope, curvature)
+        beyond = np.abs(dh - model.median_dh_m) > lod
+        exceed["flat"].append(beyond[slope < 10].mean())
+        exceed["steep"].append(beyond[slope > 30].mean())
+    for where, shares in exceed.items():
+        assert 0.035 <= float(np.mean(shares)) <= 0.065, (where, shares)
+
+
+def test_effective_samples_match_the_spread_of_area_means():
+    rng = np.random.default_rng(7)
+    shape = (600, 600)
+    dh = (0.1 * (0.5 * rng.normal(size=shape) + 0.85 * _correlated(rng, shape, 3))).astype(
+        np.float32
+    )
+    flat = np.zeros(shape, np.float32)
+    model = fit_error_model(dh, flat, flat, PIXEL)
+    side = 20  # 10 m squares: the mean over each, compared with sigma / sqrt(n_eff)
+    means = [
+        dh[r : r + side, c : c + side].mean()
+        for r in range(0, 600, side * 2)
+        for c in range(0, 600, side * 2)
+    ]
+    predicted = model.nmad_m * model.mean_error_factor((side * PIXEL) ** 2)
+    assert float(np.std(means)) == pytest.approx(predicted, rel=0.3)
+
+
+def test_polygon_intervals_cover_the_planted_slide():
+    covered_volume, covered_area, trials = 0, 0, 40
+    for seed in range(trials):
+        rng = np.random.default_rng(100 + seed)
+        shape = (200, 200)
+        noise = 0.15 * (0.6 * rng.normal(size=shape) + 0.8 * _correlated(rng, shape, 2))
+        true_dh = np.zeros(shape, np.float32)
+        true_dh[60:100, 70:120] = -1.2
+        dh = (true_dh + noise).astype(np.float32)
+        flat = np.zeros(shape, np.float32)
+        model = fit_error_model(dh, flat, flat, PIXEL)
+        lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
+        centred = dh - model.median_dh_m
+        significance = np.zeros(shape, np.uint8)
+        significance[centred < -lod] = LOSS
+        significance[centred > lod] = GAIN
+        rasters = ChangeRasters(
+            dh=centred.astype(np.float32),
+            lod=lod,
+            significance=significance,
+            transform=from_origin(500000, 4000000, PIXEL, PIXEL),
+            crs="EPSG:32654",
+            model=model,
+        )
+        options = RegionOptions()
+        labels, keep, windows = label_regions(
+            significant_regions(rasters, options), rasters, options
+        )
+        on_slide = [k for k in keep if labels[80, 95] == k]
+        assert on_slide, f"seed {seed}: the slide was not found"
+        k = on_slide[0]
+        region = describe_region(rasters, labels, k, windows[keep.index(k)], options)
+        truth_volume = 1.2 * 40 * 50 * PIXEL**2
+        low, high = region.properties["volume_loss_m3_ci95"]
+        covered_volume += low <= truth_volume <= high
+        a_low, a_high = region.properties["area_m2_ci95"]
+        covered_area += a_low <= 40 * 50 * PIXEL**2 <= a_high
+    assert covered_volume / trials >= 0.9
+    assert covered_area / trials >= 0.9

@@ -1,0 +1,447 @@
+"""Regions of significant change: their polygons, sizes with 95 % intervals, and traits.
+
+One place builds a detection's record for the methods that work from the per-pixel LoD
+(`threshold` and `scored`): the polygon, area and volumes with their 95 % intervals, the
+largest |dh|, the LoD met, and the traits a scorer uses (how far beyond the LoD, how
+large against the errors' correlation, whether it is a tall object that appeared or
+vanished with no ground motion around it).
+
+Intervals (95 %):
+- volumes: the region's loss (gain) is the sum of its negative (positive) dh times the
+  pixel area; its error is the area times the region's mean sigma over sqrt(n_eff), the
+  effective number of samples of an area of that size under the fitted variogram
+  (error_model.py), so correlated errors widen it as they should;
+- area: from the region eroded by one pixel (its edge is uncertain by a pixel) to the
+  region grown by one pixel over the neighbouring pixels beyond half the LoD (the fringe
+  where change is likely but not significant).
+
+Vegetation and structures: a pixel is a tall object when it stands more than
+`object_height_m` above the local ground (a grey opening of the DSM wider than a tree
+crown or a house). A region whose significant pixels are mostly objects that vanished
+(loss) or appeared (gain), with the ground under and around it unmoved, is a surface
+change (a tree felled or grown, a building built or removed), not a landslide.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rasterio
+import rasterio.features
+import rasterio.windows
+import shapely
+from scipy import ndimage
+from shapely.geometry import shape as to_shape
+
+from worker.pipeline.difference import (
+    ERROR_MODEL_FILE,
+    GAIN,
+    LOD_FILE,
+    LOD_Z,
+    LOSS,
+    read_error_model,
+)
+from worker.pipeline.error_model import ErrorModel, VariogramModel
+from worker.pipeline.errors import InputError
+from worker.pipeline.geo import to_wgs84_geojson
+from worker.pipeline.raster_io import read_elevation
+
+SURFACE_CHANGE = "surface-change"
+LANDSLIDE = "landslide"
+
+
+@dataclass
+class RegionOptions:
+    # None: max(min_area_px pixels, correlation_area_factor * pi * (L/2)^2), L the errors'
+    # correlation length, so a patch of correlated error is not taken for a change.
+    min_area_m2: float | None = None
+    min_area_px: int = 64
+    correlation_area_factor: float = 1.0
+    opening_px: int = 1  # radius of the square that removes speckle
+    closing_px: int = 2  # radius of the square that bridges gaps
+    object_height_m: float = 2.5
+    object_width_m: float = 15.0  # wider than a tree crown or a house
+    object_fraction: float = 0.5  # share of a region's change on objects
+    ground_motion_fraction: float = 0.2  # share of the region whose ground moved
+
+
+@dataclass
+class ChangeRasters:
+    """Everything a region needs, on the comparison's grid."""
+
+    dh: np.ndarray  # centred: minus the stable-terrain median
+    lod: np.ndarray
+    significance: np.ndarray
+    transform: rasterio.Affine
+    crs: Any
+    model: ErrorModel
+    pre: np.ndarray | None = None
+    post: np.ndarray | None = None
+    _objects: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    @property
+    def pixel_size(self) -> float:
+        return float(abs(self.transform.a))
+
+    @property
+    def pixel_area(self) -> float:
+        return float(abs(self.transform.a * self.transform.e))
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return self.lod / LOD_Z
+
+    def objects(self, options: RegionOptions) -> tuple[np.ndarray, np.ndarray]:
+        """(tall object in pre, tall object in post) per pixel; computed once."""
+        if self._objects is None:
+            if self.pre is None or self.post is None:
+                zeros = np.zeros(self.dh.shape, dtype=bool)
+                self._objects = (zeros, zeros)
+            else:
+                ground_pre = _local_ground(self.pre, self.pixel_size, options.object_width_m)
+                ground_post = _local_ground(self.post, self.pixel_size, options.object_width_m)
+                with np.errstate(invalid="ignore"):
+                    vanished = (self.pre - ground_pre) > options.object_height_m
+                    appeared = (self.post - ground_post) > options.object_height_m
+                self._objects = (vanished, appeared)
+        return self._objects
+
+    @property
+    def median(self) -> float:
+        return float(self.model.median_dh_m)
+
+
+def load_change_rasters(
+    dh_path: Path,
+    significance_path: Path,
+    pre_path: Path | None = None,
+    post_path: Path | None = None,
+) -> ChangeRasters:
+    """Read the difference stage's outputs (and the DSMs, for the object rule).
+
+    Without lod.tif / error_model.json beside dh (an older work dir, or a caller's own
+    significance mask), the LoD is the mask's LOD_M tag everywhere and errors are taken
+    as uncorrelated.
+    """
+    dh, profile = read_elevation(dh_path)
+    with rasterio.open(significance_path) as src:
+        significance = src.read(1)
+        tags = src.tags()
+    if significance.shape != dh.shape:
+        raise InputError("the significance mask is not on the grid of the elevation difference")
+    folder = Path(dh_path).parent
+    if (folder / LOD_FILE).exists() and (folder / ERROR_MODEL_FILE).exists():
+        lod, _ = read_elevation(folder / LOD_FILE)
+        model = read_error_model(folder)
+    else:
+        value = _tag_lod(tags, significance, dh)
+        lod = np.where(np.isfinite(dh), np.float32(value), np.nan).astype(np.float32)
+        pixel = float(abs(profile["transform"].a))
+        model = ErrorModel(
+            pixel_size=pixel,
+            slope_centres_deg=[0.0],
+            curvature_centres=[0.0],
+            sigma_table=[[value / LOD_Z]],
+            median_dh_m=0.0,
+            nmad_m=value / LOD_Z,
+            stable_pixels=0,
+            variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
+        )
+    rasters = ChangeRasters(
+        dh=(dh - np.float32(model.median_dh_m)).astype(np.float32),
+        lod=lod,
+        significance=significance,
+        transform=profile["transform"],
+        crs=profile["crs"],
+        model=model,
+    )
+    if pre_path is not None and post_path is not None:
+        rasters.pre, _ = read_elevation(pre_path)
+        rasters.post, _ = read_elevation(post_path)
+    return rasters
+
+
+def min_area_m2(rasters: ChangeRasters, options: RegionOptions) -> float:
+    """The smallest region kept (see RegionOptions.min_area_m2)."""
+    if options.min_area_m2 is not None:
+        return float(options.min_area_m2)
+    length = rasters.model.correlation_length_m
+    correlated = options.correlation_area_factor * math.pi * (length / 2.0) ** 2
+    return max(options.min_area_px * rasters.pixel_area, correlated)
+
+
+def clean_mask(changed: np.ndarray, options: RegionOptions) -> np.ndarray:
+    """Opening removes speckle, closing bridges gaps (without eroding the raster's edge)."""
+    if options.opening_px > 0:
+        size = 2 * options.opening_px + 1
+        changed = ndimage.binary_opening(changed, structure=np.ones((size, size), dtype=bool))
+    if options.closing_px > 0:
+        size = 2 * options.closing_px + 1
+        padded = np.pad(changed, options.closing_px, mode="edge")
+        closed = ndimage.binary_closing(padded, structure=np.ones((size, size), dtype=bool))
+        changed = closed[tuple(slice(options.closing_px, -options.closing_px) for _ in range(2))]
+    return changed
+
+
+def significant_regions(rasters: ChangeRasters, options: RegionOptions) -> np.ndarray:
+    """Pixels of cleaned significant change (loss and gain together: a landslide is both)."""
+    changed = (rasters.significance == LOSS) | (rasters.significance == GAIN)
+    return clean_mask(changed, options)
+
+
+def label_regions(
+    mask: np.ndarray, rasters: ChangeRasters, options: RegionOptions
+) -> tuple[np.ndarray, list[int], list[tuple[slice, slice]]]:
+    """8-connected regions of at least the minimum area: labels, kept ids, their windows."""
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if not count:
+        return labels, [], []
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    keep = np.flatnonzero(sizes * rasters.pixel_area >= min_area_m2(rasters, options))
+    keep = [int(k) for k in keep if k > 0]
+    objects = ndimage.find_objects(labels)
+    return labels, keep, [objects[k - 1] for k in keep]
+
+
+@dataclass
+class Region:
+    """One region: its polygon (metric CRS), its detection properties and its traits."""
+
+    geometry: Any
+    properties: dict[str, Any]
+    traits: dict[str, float]
+    kind: str  # LANDSLIDE or SURFACE_CHANGE
+
+
+def describe_region(
+    rasters: ChangeRasters,
+    labels: np.ndarray,
+    label: int,
+    window: tuple[slice, slice],
+    options: RegionOptions,
+) -> Region:
+    """The region's polygon, sizes with 95 % intervals, and its traits."""
+    pad = 4
+    rows, cols = window
+    r0, c0 = max(rows.start - pad, 0), max(cols.start - pad, 0)
+    r1 = min(rows.stop + pad, labels.shape[0])
+    c1 = min(cols.stop + pad, labels.shape[1])
+    win = (slice(r0, r1), slice(c0, c1))
+    inside = labels[win] == label
+    dh = rasters.dh[win]
+    lod = rasters.lod[win]
+    sig = rasters.significance[win]
+    finite = inside & np.isfinite(dh)
+    transform = rasterio.windows.transform(
+        rasterio.windows.Window(c0, r0, c1 - c0, r1 - r0), rasters.transform
+    )
+    polygons = [
+        to_shape(geom)
+        for geom, value in rasterio.features.shapes(
+            inside.astype(np.uint8), mask=inside, transform=transform, connectivity=8
+        )
+        if value == 1
+    ]
+    geometry = shapely.union_all(polygons) if len(polygons) > 1 else polygons[0]
+    pa = rasters.pixel_area
+    values = dh[finite]
+    sigmas = lod[finite] / LOD_Z
+    significant = finite & ((sig == LOSS) | (sig == GAIN))
+    lossy = finite & (dh < 0)
+    gainy = finite & (dh > 0)
+    volume_loss = float(-dh[lossy].sum() * pa)
+    volume_gain = float(dh[gainy].sum() * pa)
+    loss_half = 1.96 * _volume_sigma(rasters.model, lod[lossy] / LOD_Z, pa)
+    gain_half = 1.96 * _volume_sigma(rasters.model, lod[gainy] / LOD_Z, pa)
+
+    eroded = ndimage.binary_erosion(inside, structure=np.ones((3, 3), bool))
+    near = ndimage.binary_dilation(inside, structure=np.ones((3, 3), bool), iterations=2)
+    with np.errstate(invalid="ignore"):
+        fringe = near & (np.abs(dh) > 0.5 * lod)
+    grown = ndimage.binary_dilation(inside | fringe, structure=np.ones((3, 3), bool))
+    area = float(geometry.area)
+    area_low = float(np.count_nonzero(eroded) * pa)
+    area_high = float(np.count_nonzero(grown) * pa)
+
+    abs_values = np.abs(values)
+    ratio = abs_values / np.maximum(lod[finite], 1e-9)
+    area_sigma = float(np.sqrt(np.mean(sigmas**2))) if sigmas.size else 0.0
+    mean_z = (
+        float(abs(values.mean()) / (area_sigma * rasters.model.mean_error_factor(area)))
+        if values.size and area_sigma > 0
+        else 0.0
+    )
+    kind, object_share, ground_share = _kind(rasters, win, inside, significant, dh, lod, options)
+    ring = near & ~inside
+    ring_significant = float(
+        np.count_nonzero(ring & ((sig == LOSS) | (sig == GAIN))) / max(np.count_nonzero(ring), 1)
+    )
+    total = volume_loss + volume_gain
+    traits = {
+        "log_area_px": math.log(max(float(np.count_nonzero(inside)), 1.0)),
+        "log_area_correlation": math.log(
+            max(area, pa) / max(math.pi * (rasters.model.correlation_length_m / 2) ** 2, pa)
+        ),
+        "mean_lod_ratio": float(ratio.mean()) if ratio.size else 0.0,
+        "p90_lod_ratio": float(np.percentile(ratio, 90)) if ratio.size else 0.0,
+        "significant_share": float(
+            np.count_nonzero(significant) / max(np.count_nonzero(finite), 1)
+        ),
+        "log_area_z": math.log1p(mean_z),
+        "balance": abs(volume_loss - volume_gain) / total if total > 0 else 1.0,
+        "sign_coherence": _sign_coherence(dh, significant),
+        "object_share": object_share,
+        "ground_motion_share": ground_share,
+        "ring_significant_share": ring_significant,
+        "log_elongation": math.log(_elongation(inside)),
+        "downslope_alignment": _downslope_alignment(rasters, win, dh, significant),
+        "compactness": float(4 * math.pi * area / max(geometry.length, 1e-9) ** 2),
+    }
+    properties = {
+        "area_m2": round(area, 2),
+        "area_m2_ci95": [round(area_low, 2), round(max(area_high, area), 2)],
+        "volume_loss_m3": round(volume_loss, 2),
+        "volume_loss_m3_ci95": [
+            round(max(volume_loss - loss_half, 0.0), 2),
+            round(volume_loss + loss_half, 2),
+        ],
+        "volume_gain_m3": round(volume_gain, 2),
+        "volume_gain_m3_ci95": [
+            round(max(volume_gain - gain_half, 0.0), 2),
+            round(volume_gain + gain_half, 2),
+        ],
+        "max_abs_dh_m": round(float(abs_values.max()) if abs_values.size else 0.0, 3),
+        "lod_m": round(float(np.median(lod[finite])) if values.size else 0.0, 3),
+    }
+    return Region(geometry=geometry, properties=properties, traits=traits, kind=kind)
+
+
+def feature(region: Region, crs: Any, extra: dict[str, Any]) -> dict[str, Any]:
+    """A GeoJSON Feature (WGS84) of a region, with its properties and `extra` ones."""
+    geojson = to_wgs84_geojson(region.geometry, crs)
+    lons_lats = shapely.get_coordinates(to_shape(geojson))
+    return {
+        "type": "Feature",
+        "bbox": [round(float(v), 7) for v in (*lons_lats.min(axis=0), *lons_lats.max(axis=0))],
+        "geometry": geojson,
+        "properties": {**region.properties, **extra},
+    }
+
+
+def _volume_sigma(model: ErrorModel, sigmas: np.ndarray, pixel_area: float) -> float:
+    """sigma of a sum of dh over these pixels times the pixel area, errors correlated."""
+    if sigmas.size == 0:
+        return 0.0
+    area = sigmas.size * pixel_area
+    rms = float(np.sqrt(np.mean(np.square(sigmas))))
+    return area * rms * model.mean_error_factor(area)
+
+
+def _kind(
+    rasters: ChangeRasters,
+    win: tuple[slice, slice],
+    inside: np.ndarray,
+    significant: np.ndarray,
+    dh: np.ndarray,
+    lod: np.ndarray,
+    options: RegionOptions,
+) -> tuple[str, float, float]:
+    if rasters.pre is None or rasters.post is None:
+        return LANDSLIDE, 0.0, 1.0
+    vanished, appeared = (a[win] for a in rasters.objects(options))
+    on_object = (vanished & (dh < 0)) | (appeared & (dh > 0))
+    n_sig = max(np.count_nonzero(significant), 1)
+    object_share = float(np.count_nonzero(on_object & significant) / n_sig)
+    # Ground motion: significant change on the bare ground (no object in either survey)
+    # in and around the region. A felled tree leaves the ground around it unmoved; a
+    # forested slide moves the ground between its trees.
+    # Object margins (a crown's low flanks, a wall's foot) are not ground either.
+    around = ndimage.binary_dilation(inside, iterations=3)
+    objects = ndimage.binary_dilation(vanished | appeared, iterations=2)
+    ground = around & ~objects & np.isfinite(dh)
+    with np.errstate(invalid="ignore"):
+        moved = ground & (np.abs(dh) > lod)
+    ground_share = float(np.count_nonzero(moved) / max(np.count_nonzero(ground), 1))
+    if object_share >= options.object_fraction and ground_share < options.ground_motion_fraction:
+        return SURFACE_CHANGE, object_share, ground_share
+    return LANDSLIDE, object_share, ground_share
+
+
+def _downslope_alignment(
+    rasters: ChangeRasters, win: tuple[slice, slice], dh: np.ndarray, significant: np.ndarray
+) -> float:
+    """Cosine between the loss-to-gain direction and the region's downslope direction.
+
+    A landslide takes material from its head and lays it down below: the gain lies
+    downslope of the loss (near 1). Misregistration and objects put loss and gain side
+    by side in any direction.
+    """
+    surface = rasters.pre if rasters.pre is not None else None
+    loss = significant & (dh < 0)
+    gain = significant & (dh > 0)
+    if surface is None or not loss.any() or not gain.any():
+        return 0.0
+    part = surface[win]
+    if not np.isfinite(part).any():
+        return 0.0
+    filled = np.where(np.isfinite(part), part, np.nanmean(part))
+    gy, gx = np.gradient(filled.astype(np.float64))
+    both = loss | gain
+    # Rows grow southwards; downslope is minus the gradient.
+    down = -np.array([gy[both].mean(), gx[both].mean()])
+    rows, cols = np.indices(dh.shape)
+    move = np.array(
+        [rows[gain].mean() - rows[loss].mean(), cols[gain].mean() - cols[loss].mean()]
+    )
+    norm = float(np.linalg.norm(down) * np.linalg.norm(move))
+    return float(down @ move / norm) if norm > 0 else 0.0
+
+
+def _sign_coherence(dh: np.ndarray, significant: np.ndarray) -> float:
+    values = dh[significant]
+    if values.size == 0:
+        return 0.0
+    return float(max(np.count_nonzero(values < 0), np.count_nonzero(values > 0)) / values.size)
+
+
+def _elongation(inside: np.ndarray) -> float:
+    rows, cols = np.nonzero(inside)
+    if rows.size < 3:
+        return 1.0
+    cov = np.cov(np.vstack([rows, cols]).astype(float))
+    eig = np.sort(np.linalg.eigvalsh(cov))
+    return float(math.sqrt(max(eig[1], 1e-9) / max(eig[0], 0.25 / 12)))
+
+
+def _local_ground(dsm: np.ndarray, pixel_size: float, width_m: float) -> np.ndarray:
+    """The ground under tall objects: a grey opening wider than them (coarsened if wide)."""
+    valid = np.isfinite(dsm)
+    if not valid.any():
+        return dsm
+    filled = np.where(valid, dsm, np.nanmax(dsm))
+    width_px = max(round(width_m / pixel_size), 3)
+    factor = max(width_px // 15, 1)
+    if factor > 1:
+        h, w = filled.shape
+        ph, pw = (-h) % factor, (-w) % factor
+        padded = np.pad(filled, ((0, ph), (0, pw)), mode="edge")
+        coarse = padded.reshape(padded.shape[0] // factor, factor, -1, factor).min(axis=(1, 3))
+        opened = ndimage.grey_opening(coarse, size=(15, 15), mode="nearest")
+        ground = np.repeat(np.repeat(opened, factor, axis=0), factor, axis=1)[:h, :w]
+    else:
+        ground = ndimage.grey_opening(filled, size=(width_px, width_px), mode="nearest")
+    return np.where(valid, ground, np.nan).astype(np.float32)
+
+
+def _tag_lod(tags: dict[str, str], significance: np.ndarray, dh: np.ndarray) -> float:
+    """The LoD the difference stage wrote, else the smallest significant |dh|."""
+    if tags.get("LOD_M"):
+        return float(tags["LOD_M"])
+    significant = (significance == LOSS) | (significance == GAIN)
+    if not significant.any():
+        return 0.0
+    return float(np.nanmin(np.abs(dh[significant])))

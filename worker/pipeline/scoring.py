@@ -1,0 +1,154 @@
+"""The `score` stage of the `scored` method: change candidates scored as landslides.
+
+Candidates are the regions of significant change of the LoD method plus regions that are
+significant only as an area: where the mean of z = dh / sigma over a disk of the errors'
+correlation size exceeds `area_z` in units of its own standard error (sqrt(n_eff)), so a
+shallow slide under the pixel LoD but wide and coherent is still a candidate. Each
+candidate is described once (change_regions.describe_region) and scored by the
+calibrated scorer (scorer.py); those whose probability reaches the scorer's threshold
+are the detections, `score` being that probability. Tall objects that appeared or
+vanished with no ground motion around them are set aside as surface changes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from worker.pipeline.change_regions import (
+    SURFACE_CHANGE,
+    ChangeRasters,
+    Region,
+    RegionOptions,
+    clean_mask,
+    describe_region,
+    feature,
+    label_regions,
+    load_change_rasters,
+    min_area_m2,
+    significant_regions,
+)
+from worker.pipeline.geo import crs_to_string
+from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.scorer import Scorer, load_scorer
+from worker.pipeline.vectorize import write_detections
+
+
+@dataclass
+class ScoreOptions(RegionOptions):
+    area_z: float = 4.0  # area-level significance of a candidate, in standard errors
+    min_pixel_z: float = 1.0  # and each of its pixels at least this many sigmas
+    scorer: str | None = None  # path of a scorer JSON; None: the shipped default
+    threshold: float | None = None  # None: the scorer's operating threshold
+
+
+@dataclass
+class ScoreResult:
+    detections: int
+    candidates: int
+    total_area_m2: float
+    total_volume_loss_m3: float
+    total_volume_gain_m3: float
+    surface_changes: int
+    surface_change_area_m2: float
+    min_area_m2: float
+    threshold: float
+    model: str
+    method: str
+    crs: str
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def score_candidates(
+    dh_path: Path,
+    significance_path: Path,
+    pre_path: Path,
+    post_path: Path,
+    out_geojson: Path,
+    options: ScoreOptions | None = None,
+    progress: ProgressFn = no_progress,
+    method: str = "scored",
+) -> ScoreResult:
+    """Write the scored detections to `out_geojson` (atomically)."""
+    options = options or ScoreOptions()
+    start = time.perf_counter()
+    scorer = load_scorer(Path(options.scorer) if options.scorer else None)
+    threshold = scorer.threshold if options.threshold is None else float(options.threshold)
+    rasters = load_change_rasters(dh_path, significance_path, pre_path, post_path)
+    regions = candidate_regions(rasters, options)
+    progress(0.6)
+    landslides = [r for r in regions if r.kind != SURFACE_CHANGE]
+    surface = [r for r in regions if r.kind == SURFACE_CHANGE]
+    probabilities = scorer.probability([r.traits for r in landslides])
+    features = [
+        feature(
+            r,
+            rasters.crs,
+            {"score": round(float(p), 3), "method": method, "model": scorer.reference},
+        )
+        for r, p in zip(landslides, probabilities, strict=True)
+        if p >= threshold
+    ]
+    collection = write_detections(out_geojson, features, rasters.crs)
+    progress(1.0)
+    props = [f["properties"] for f in collection["features"]]
+    return ScoreResult(
+        detections=len(props),
+        candidates=len(regions),
+        total_area_m2=float(sum(p["area_m2"] for p in props)),
+        total_volume_loss_m3=float(sum(p["volume_loss_m3"] for p in props)),
+        total_volume_gain_m3=float(sum(p["volume_gain_m3"] for p in props)),
+        surface_changes=len(surface),
+        surface_change_area_m2=round(float(sum(r.geometry.area for r in surface)), 2),
+        min_area_m2=round(min_area_m2(rasters, options), 3),
+        threshold=threshold,
+        model=scorer.reference,
+        method=method,
+        crs=crs_to_string(rasters.crs),
+        seconds=time.perf_counter() - start,
+    )
+
+
+def candidate_regions(rasters: ChangeRasters, options: ScoreOptions) -> list[Region]:
+    """Every candidate region, described (pixel-significant or area-significant)."""
+    mask = significant_regions(rasters, options) | area_significant(rasters, options)
+    labels, keep, windows = label_regions(mask, rasters, options)
+    return [
+        describe_region(rasters, labels, label, window, options)
+        for label, window in zip(keep, windows, strict=True)
+    ]
+
+
+def area_significant(rasters: ChangeRasters, options: ScoreOptions) -> np.ndarray:
+    """Pixels whose neighbourhood's mean dh is significant as an area (see module doc)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = rasters.dh / rasters.sigma
+    valid = np.isfinite(z)
+    if not valid.any():
+        return np.zeros(z.shape, dtype=bool)
+    length = max(rasters.model.correlation_length_m, 3 * rasters.pixel_size)
+    radius_px = int(min(max(math.ceil(length / rasters.pixel_size), 3), 64))
+    size = 2 * radius_px + 1
+    filled = np.where(valid, z, 0.0).astype(np.float32)
+    weight = ndimage.uniform_filter(valid.astype(np.float32), size, mode="constant")
+    mean = ndimage.uniform_filter(filled, size, mode="constant") / np.maximum(weight, 1e-6)
+    area = (size * rasters.pixel_size) ** 2
+    t = mean / rasters.model.mean_error_factor(area)
+    with np.errstate(invalid="ignore"):
+        candidate = valid & (weight > 0.5) & (np.abs(t) > options.area_z)
+        candidate &= np.abs(z) > options.min_pixel_z
+        candidate &= np.sign(z) == np.sign(mean)
+    return clean_mask(candidate, options)
+
+
+def scorer_for(options: ScoreOptions) -> Scorer:
+    return load_scorer(Path(options.scorer) if options.scorer else None)
