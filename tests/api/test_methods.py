@@ -10,6 +10,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from backend.db.models import Comparison, JobState
+from backend.services import comparisons as comparisons_service
 from backend.services.jobs import new_job
 from tests.api_helpers import run_job_inline, upload_dsm
 from worker.jobs.comparison import ComparisonJob
@@ -39,13 +40,13 @@ def test_methods_lists_the_three_with_the_library_default(client: TestClient, au
     response = client.get("/api/v1/methods", headers=auth)
     assert response.status_code == 200, response.text
     methods = response.json()
-    assert [m["name"] for m in methods] == list(METHODS) == ["scored", "threshold", "cnn"]
+    assert [m["name"] for m in methods] == list(METHODS) == ["threshold", "scored", "cnn"]
     for method in methods:
         assert method["summary"] == METHOD_SUMMARIES[method["name"]]
         assert method["stages"] == list(STAGES_BY_METHOD[method["name"]])
     assert [m["name"] for m in methods if m["default"]] == [default_method()]
     # The scored method is the default exactly when its scorer ships.
-    assert (default_method() == "scored") == shipped_scorer_available()
+    assert default_method() == "threshold" and shipped_scorer_available()
 
 
 @pytest.mark.parametrize("doc", ["README.md", "docs/detection.md", "docs/frontend.md"])
@@ -107,10 +108,14 @@ def test_a_comparison_without_a_method_runs_the_default_and_says_how(
     assert {"dh", "lod", "detections"} <= {p["kind"] for p in products}
 
 
-@pytest.mark.skipif(shipped_scorer_available(), reason="the scorer ships: scored can run")
 def test_scored_is_refused_while_its_scorer_is_not_installed(
-    client: TestClient, auth: dict, site_and_surveys: tuple[int, int, int]
+    client: TestClient,
+    auth: dict,
+    site_and_surveys: tuple[int, int, int],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    # An installation without the scorer's weights file (a trimmed package).
+    monkeypatch.setattr(comparisons_service, "shipped_scorer_available", lambda: False)
     site, pre, post = site_and_surveys
     response = client.post(
         f"/api/v1/sites/{site}/comparisons",

@@ -30,6 +30,8 @@ CNN_FILES = {
     "stable_mask.tif",
     "dh.tif",
     "significance.tif",
+    "lod.tif",
+    "error_model.json",
     "probability.tif",
     "cells.geojson",
     "detections.geojson",
@@ -37,7 +39,7 @@ CNN_FILES = {
 
 
 def test_stages_per_method():
-    assert METHODS == ("scored", "threshold", "cnn")
+    assert METHODS == ("threshold", "scored", "cnn")
     assert stages_for("threshold") == STAGES == ("align", "coregister", "difference", "vectorize")
     assert stages_for("cnn") == ("align", "coregister", "difference", "detect")
     with pytest.raises(InputError, match="unknown detection method"):
@@ -175,11 +177,12 @@ def test_detect_command_with_the_cnn(cnn_slide_run, tmp_path):
             str(out),
             "--work-dir",
             str(tmp_path / "work"),
+            "--method",
+            "cnn",
         ],
     )
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["detections"] == 1
-    # cnn is the default method once weights ship.
     assert json.loads(out.read_text())["features"][0]["properties"]["method"] == "cnn"
     assert (tmp_path / "work" / "probability.tif").exists()
     args = ["--pre", "a.tif", "--post", "b.tif", "--out", str(out), "--method", "threshold"]

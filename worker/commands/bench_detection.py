@@ -47,6 +47,7 @@ ONLY_FOR = {
         "held_out",
         "leave_one_out",
         "training_seeds",
+        "publish_card",
     ),
 }
 
@@ -112,6 +113,12 @@ ONLY_FOR = {
     help="generators suite, with --leave-one-out: seeds 0..N-1 of every generator train.",
 )
 @click.option(
+    "--publish-card",
+    type=click.Path(path_type=Path, exists=True),
+    default=None,
+    help="generators suite: write the per-generator figures into this scorer's card.",
+)
+@click.option(
     "--held-out",
     "held_out",
     multiple=True,
@@ -162,6 +169,7 @@ def detection(
     first_seed: int,
     leave_one_out: Path | None,
     training_seeds: int,
+    publish_card: Path | None,
     held_out: tuple[str, ...],
     scenarios: tuple[str, ...],
     paper_epochs: int,
@@ -199,6 +207,7 @@ def detection(
             threads,
             None if no_speed else speed_size,
             (leave_one_out, training_seeds) if leave_one_out else None,
+            publish_card,
         )
 
 
@@ -226,6 +235,7 @@ def generators_suite(
     threads: int,
     speed_size: int | None,
     leave_one_out: tuple[Path, int] | None = None,
+    publish_card: Path | None = None,
 ) -> None:
     from worker.detection_bench import runner
     from worker.pipeline.atomic import write_text_atomic
@@ -267,6 +277,13 @@ def generators_suite(
 
         report["speed"] = detection_speed(work_dir, speed_size)
     write_text_atomic(json_path, runner.report_json(report))
+    if publish_card:
+        import sys
+
+        from worker.detection_bench.scorer_training import publish_benchmark
+
+        clean = json.loads(runner.report_json(report))
+        publish_benchmark(clean, publish_card, "slidewatch " + " ".join(sys.argv[1:]))
     click.echo(runner.format_tables(report))
     if speed_size:
         speed = report["speed"]

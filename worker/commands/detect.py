@@ -48,8 +48,8 @@ EXIT_INPUT_ERROR = 2
     "--method",
     type=click.Choice(METHODS),
     default=None,
-    help="Default: scored when its scorer ships, else threshold (the API's and the map's "
-    "default too). " + " ".join(f"{name}: {METHOD_SUMMARIES[name]}" for name in METHODS),
+    help="Default: threshold (the API's and the map's default too). "
+    + " ".join(f"{name}: {METHOD_SUMMARIES[name]}" for name in METHODS),
 )
 @click.option(
     "--model",

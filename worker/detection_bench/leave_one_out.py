@@ -1,9 +1,10 @@
 """Leave one generator out: the `scored` method on each generator with a scorer that
 never saw it.
 
-For each benchmarked generator g, a scorer is fitted on three of the other generators
-and calibrated (Platt scaling, recall-first threshold) on the remaining two
-(`folds`), from the candidates of training seeds (cached by scorer_training), then
+For each benchmarked generator g, a scorer is fitted on three of the other pair
+generators and calibrated (Platt scaling, recall-first threshold) on the remaining two
+(`folds`; the survey simulator's pairs, never in the pool, get a scorer of the whole
+pool), from the candidates of training seeds (cached by scorer_training), then
 the `score` stage runs with it on g's benchmark pairs and twins, reusing their
 comparison's first stages. The runs enter the report as the method "scored-logo", so
 every figure of that row is on a generator its scorer was not fitted or calibrated to.
@@ -62,13 +63,12 @@ def add_leave_one_out(
     log: Callable[[str], Any] = print,
 ) -> None:
     """Add the "scored-logo" runs and aggregates to a generator benchmark's report."""
-    candidates = collect_candidates(
-        training_dir, all_generators, training_seeds, log=lambda _: None
-    )
-    plan = folds([g.name for g in all_generators])
+    pool = [g for g in all_generators if g.name in _pool_names()]
+    candidates = collect_candidates(training_dir, pool, training_seeds, log=lambda _: None)
+    plan = folds([g.name for g in pool])
     runs: list[dict[str, Any]] = []
     for generator in generators:
-        training, calibration = plan[generator.name]
+        training, calibration = plan.get(generator.name) or _outside_pool(plan)
         scorer = train_scorer(
             candidates, training, calibration, name=f"scorer-without-{generator.name}"
         )
@@ -88,13 +88,28 @@ def add_leave_one_out(
     report["runs"] = [r for r in report["runs"] if r["method"] != METHOD] + runs
     report["methods"] = [m for m in report["methods"] if m != METHOD] + [METHOD]
     report["leave_one_out"] = {
-        g: {"training": t, "calibration": c}
-        for g, (t, c) in plan.items()
-        if g in {gen.name for gen in generators}
+        g.name: dict(
+            zip(("training", "calibration"), plan.get(g.name) or _outside_pool(plan), strict=True)
+        )
+        for g in generators
     }
     report["aggregates"] = aggregate_report(
         report["runs"], report["methods"], report["generators"], report["held_out"]
     )
+
+
+def _pool_names() -> set[str]:
+    """Generators whose candidates train the folds: the pair generators (worker/pairgen/);
+    the survey simulator's pairs are only ever scored."""
+    from worker.pairgen import GENERATORS
+
+    return set(GENERATORS)
+
+
+def _outside_pool(plan: dict[str, tuple[list[str], list[str]]]) -> tuple[list[str], list[str]]:
+    """A generator outside the pool is scored by a scorer of the whole pool."""
+    names = sorted(plan)
+    return names[2:], names[:2]
 
 
 def _first_stages_dir(work_dir: Path, generator: str, seed: int, kind: str) -> Path:

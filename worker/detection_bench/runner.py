@@ -41,10 +41,12 @@ class PairGenerator(Protocol):
 
 
 def available_generators() -> Mapping[str, PairGenerator]:
-    """The pair generators' registry (imported late: it is written alongside)."""
+    """The pair generators (worker/pairgen/) and the survey simulator's analytic pairs."""
+    from worker.detection_bench.simulator_pairs import SimulatorPairs
     from worker.pairgen import GENERATORS
 
-    return GENERATORS
+    simulator = SimulatorPairs()
+    return {**GENERATORS, simulator.name: simulator}
 
 
 def resolve_generators(names: Sequence[str] | None = None) -> list[PairGenerator]:

@@ -106,8 +106,6 @@ class DsmPair:
         }
         write_geotiff(paths["pre"], self.pre, self.transform, PAIR_CRS)
         write_geotiff(paths["post"], self.post, self.transform, PAIR_CRS)
-        write_geotiff(
-            paths["truth"], self.slide_labels.astype(np.uint8), self.transform, PAIR_CRS
-        )
+        write_geotiff(paths["truth"], self.slide_labels.astype(np.uint8), self.transform, PAIR_CRS)
         paths["truth_json"].write_text(json.dumps(self.truth_dict(), indent=1))
         return paths

@@ -299,6 +299,7 @@ def describe_region(
         "ring_significant_share": ring_significant,
         "log_elongation": math.log(_elongation(inside)),
         "downslope_alignment": _downslope_alignment(rasters, win, dh, significant),
+        "edge_contrast": _edge_contrast(inside, dh, lod),
         "compactness": float(4 * math.pi * area / max(geometry.length, 1e-9) ** 2),
     }
     properties = {
@@ -394,11 +395,27 @@ def _downslope_alignment(
     # Rows grow southwards; downslope is minus the gradient.
     down = -np.array([gy[both].mean(), gx[both].mean()])
     rows, cols = np.indices(dh.shape)
-    move = np.array(
-        [rows[gain].mean() - rows[loss].mean(), cols[gain].mean() - cols[loss].mean()]
-    )
+    move = np.array([rows[gain].mean() - rows[loss].mean(), cols[gain].mean() - cols[loss].mean()])
     norm = float(np.linalg.norm(down) * np.linalg.norm(move))
     return float(down @ move / norm) if norm > 0 else 0.0
+
+
+def _edge_contrast(inside: np.ndarray, dh: np.ndarray, lod: np.ndarray) -> float:
+    """log of |dh| / LoD just inside the region's edge over just outside it.
+
+    A scarp or a deposit's front is a sharp edge; a patch of correlated error cut out by
+    the threshold fades across it (about 1 in and 1 out).
+    """
+    structure = np.ones((3, 3), bool)
+    inner = inside & ~ndimage.binary_erosion(inside, structure=structure, iterations=2)
+    outer = ndimage.binary_dilation(inside, structure=structure, iterations=2) & ~inside
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.abs(dh) / lod
+    inner_values = ratio[inner & np.isfinite(ratio)]
+    outer_values = ratio[outer & np.isfinite(ratio)]
+    if inner_values.size == 0 or outer_values.size == 0:
+        return 0.0
+    return float(math.log((np.median(inner_values) + 0.1) / (np.median(outer_values) + 0.1)))
 
 
 def _sign_coherence(dh: np.ndarray, significant: np.ndarray) -> float:

@@ -11,6 +11,11 @@ Stable terrain is refined iteratively so a landslide does not bias the fit: fit 
 current stable mask, compute dh = corrected_post - pre, drop pixels with
 |dh - median| > k * NMAD or |dh| > max_abs_change_m (grown by a few pixels), refit.
 
+Photogrammetric doming (a bowl or dome over the survey, from a slightly wrong lens
+model) is removed the same way when `dome` is on: quadratic terms d (x - xc)^2 +
+e (y - yc)^2 + f (x - xc)(y - yc) join the plane, fitted on stable terrain; left in, a
+dome of a few centimetres over the survey reads as a wide, shallow change.
+
 The tilt is a least-squares plane fitted with numpy rather than xdem's Deramp: in xdem
 0.2.3 Deramp(poly_order=1) fits c00 + c01 y + c10 x + c11 x y, which adds a twist term
 that is not a tilt. The tilt is removed from post before each Nuth & Kääb fit, because a
@@ -50,6 +55,7 @@ STABLE, UNSTABLE = 1, 0  # values of the stable-terrain mask file; 255 = nodata 
 @dataclass
 class CoregisterOptions:
     tilt: bool = True
+    dome: bool = True  # quadratic terms with the tilt (needs tilt)
     max_iterations: int = 4  # stable-terrain refinement rounds
     outlier_nmad_factor: float = 4.0  # k in |dh - median| > k * NMAD
     max_abs_change_m: float = 5.0
@@ -89,6 +95,9 @@ class CoregisterResult:
     seconds: float
     initial_shift_east_m: float = 0.0  # the phase-correlation shift Nuth & Kääb began from
     initial_shift_north_m: float = 0.0
+    # Correction's quadratic terms, metres per m^2 about the pivot: (x^2, y^2, x y).
+    dome_m_per_m2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dome_range_m: float = 0.0  # largest minus smallest of those terms over the grid
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -101,25 +110,34 @@ class CoregisterResult:
         y = points[:, 1] + self.shift_north_m
         tilt_e = (self.tilt_east_m_per_km or 0.0) / 1000.0
         tilt_n = (self.tilt_north_m_per_km or 0.0) / 1000.0
-        z = (
-            points[:, 2]
-            + self.shift_up_m
-            + tilt_e * (x - self.tilt_pivot_east_m)
-            + tilt_n * (y - self.tilt_pivot_north_m)
-        )
+        u, v = x - self.tilt_pivot_east_m, y - self.tilt_pivot_north_m
+        qa, qb, qc = self.dome_m_per_m2
+        z = points[:, 2] + self.shift_up_m + tilt_e * u + tilt_n * v + qa * u * u
+        z = z + qb * v * v + qc * u * v
         return np.column_stack([x, y, z])
 
 
 @dataclass
 class _Plane:
-    """a + b (x - xc) + c (y - yc), in metres, with x, y map coordinates."""
+    """a + b dx + c dy + d dx^2 + e dy^2 + f dx dy, metres; dx, dy map offsets from the
+    grid centre."""
 
     a: float = 0.0
     b: float = 0.0
     c: float = 0.0
+    d: float = 0.0
+    e: float = 0.0
+    f: float = 0.0
 
     def evaluate(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
-        return self.a + self.b * dx + self.c * dy
+        out = self.a + self.b * dx + self.c * dy
+        if self.d or self.e or self.f:
+            out = out + self.d * dx * dx + self.e * dy * dy + self.f * dx * dy
+        return out
+
+    def shape_only(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+        """Everything but the constant: what is removed from post before Nuth & Kääb."""
+        return _Plane(0.0, self.b, self.c, self.d, self.e, self.f).evaluate(dx, dy)
 
 
 def coregister(
@@ -169,8 +187,7 @@ def coregister(
     pre_smooth = _smooth(pre, options.smoothing_px)
     for iterations in range(1, options.max_iterations + 1):
         if horizontal:
-            tilt_only = _Plane(0.0, plane.b, plane.c).evaluate(dx, dy)
-            post_smooth = _smooth(start_post - tilt_only, options.smoothing_px)
+            post_smooth = _smooth(start_post - plane.shape_only(dx, dy), options.smoothing_px)
             refined = _nuth_kaab(pre_smooth, post_smooth, stable, transform, crs, options)
             shift = (initial[0] + refined[0], initial[1] + refined[1])
         shifted = _apply_shift(post, transform, crs, shift)
@@ -217,7 +234,16 @@ def coregister(
         seconds=time.perf_counter() - start,
         initial_shift_east_m=initial[0],
         initial_shift_north_m=initial[1],
+        dome_m_per_m2=(-plane.d, -plane.e, -plane.f),
+        dome_range_m=_dome_range(plane, dx, dy),
     )
+
+
+def _dome_range(plane: _Plane, dx: np.ndarray, dy: np.ndarray) -> float:
+    if not (plane.d or plane.e or plane.f):
+        return 0.0
+    quadratic = _Plane(0.0, 0.0, 0.0, plane.d, plane.e, plane.f).evaluate(dx, dy)
+    return float(quadratic.max() - quadratic.min())
 
 
 def _initial_shift(
@@ -329,7 +355,8 @@ def _apply_shift(
 def _fit_plane(
     dh: np.ndarray, stable: np.ndarray, dx: np.ndarray, dy: np.ndarray, options: CoregisterOptions
 ) -> _Plane:
-    """Robust fit of dh on stable terrain: the median, or a plane when `tilt` is on."""
+    """Robust fit of dh on stable terrain: the median, or a plane when `tilt` is on (with
+    quadratic terms when `dome` is on too)."""
     rows, cols = np.nonzero(stable & np.isfinite(dh))
     if rows.size > options.subsample:
         pick = np.random.default_rng(options.seed).choice(
@@ -340,9 +367,13 @@ def _fit_plane(
     values = dh[rows, cols].astype(np.float64)
     if not options.tilt:
         return _Plane(float(np.median(values)))
-    design = np.column_stack([np.ones(rows.size), dx[0, cols], dy[rows, 0]])
+    x, y = dx[0, cols], dy[rows, 0]
+    columns = [np.ones(rows.size), x, y]
+    if options.dome:
+        columns += [x * x, y * y, x * y]
+    design = np.column_stack(columns)
     keep = np.ones(rows.size, dtype=bool)
-    coef = np.zeros(3)
+    coef = np.zeros(design.shape[1])
     for _ in range(2):  # second pass without the residual outliers of the first
         coef = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
         residual = values - design @ coef

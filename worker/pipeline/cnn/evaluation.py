@@ -22,6 +22,9 @@ Detectors, each giving a label per test patch:
   SlideNet): its landslide polygons (pixels with probability >= the model's pixel
   threshold, grouped, kept when their score reaches the card's min_score) rasterised on
   the grid, then the 10 % rule.
+- scored: the comparison's default scored method on the same first stages (its score
+  stage: significant-change candidates scored by the calibrated scorer), rasterised
+  likewise.
 
 Also measured: a no-change pair (nuisance only: vegetation growth and the scenario's
 small surface changes, plus a registration error) on which any detection is a false
@@ -79,6 +82,7 @@ METHOD_ORDER = (
     "threshold_30cm",
     "lod",
     "best",
+    "scored",
 )
 LOD_MIN_AREA_PX = 625  # 25 m2 at 20 cm, the platform's default minimum area
 
@@ -234,6 +238,22 @@ def evaluate_pattern(
         )
         run.predictions["best"] = patch_labels_from_pixels(found, patches)
         run.extra["best_detections"] = detect["detections"]
+
+    # The default method, on the same first stages (alignment, co-registration, LoD).
+    t0 = time.perf_counter()
+    scored = run_stage(
+        "score",
+        inputs / "pre.tif",
+        inputs / "post.tif",
+        work / "comparison",
+        ComparisonOptions(method="scored"),
+    )
+    run.seconds["scored"] = time.perf_counter() - t0 + result.results["coregister"]["seconds"]
+    found = rasterize_detections(
+        work / "comparison" / "detections.geojson", pre.shape, aligned_transform, aligned_crs
+    )
+    run.predictions["scored"] = patch_labels_from_pixels(found, patches)
+    run.extra["scored_detections"] = scored["detections"]
     return run, patches
 
 
