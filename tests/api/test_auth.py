@@ -68,6 +68,7 @@ PROTECTED = [
     ("DELETE", "/api/v1/sites/1/comparisons/1/detections/1/feedback"),
     ("GET", "/api/v1/sites/1/training-labels"),
     ("GET", "/api/v1/sites/1/comparisons/1/cells"),
+    ("GET", "/api/v1/methods"),
     ("GET", "/api/v1/models"),
     ("POST", "/api/v1/models/training"),
     ("GET", "/api/v1/models/training/{name}/{run}"),

@@ -54,7 +54,8 @@ def test_the_docs_list_each_method_with_its_line(doc: str) -> None:
     text = (Path(__file__).resolve().parents[2] / doc).read_text()
     for name in METHODS:
         assert f"`{name}`" in text and METHOD_SUMMARIES[name] in text, (doc, name)
-    assert "`scored` (the default" in text or "`scored` (default)" in text, doc
+    default = default_method()
+    assert f"`{default}` (the default" in text or f"`{default}` (default)" in text, doc
 
 
 def test_methods_need_a_token(client: TestClient) -> None:
