@@ -20,7 +20,7 @@ from worker.pairgen import GENERATORS, DsmPair, PairGenerator, SlideTruth, make_
 from worker.pairgen.errors import ERRORS, draw_errors
 from worker.pairgen.generators import PairParts
 from worker.pairgen.pair import PAIR_CRS, PAIR_ORIGIN_EN
-from worker.pairgen.slides import KINDS, SlideSpec, debris_flow, make_slide
+from worker.pairgen.slides import KINDS, SlideSpec, make_slide, place_slide
 from worker.pairgen.surfaces import Scene, Trees, apply_slides, render
 from worker.pairgen.terrain import TERRAINS
 
@@ -355,14 +355,16 @@ def test_trees_on_slides_are_carried_or_removed() -> None:
 def test_kind_functions_return_dh_footprint_and_truth() -> None:
     rng = np.random.default_rng(5)
     ground = TERRAINS["mountain"]((400, 400), 0.8, rng)
-    out = debris_flow(ground, 0.8, rng, length_m=15.0, depth_m=2.0, slide_id=2)
+    out = place_slide("debris-flow", ground, 0.8, rng, length_m=15.0, depth_m=2.0, slide_id=2)
     assert out is not None
     dh, footprint, truth = out
     assert truth.id == 2 and truth.kind == "debris-flow"
     assert not dh[~footprint].any() and truth.area_px == np.count_nonzero(footprint)
     assert truth.max_depth_m == pytest.approx(2.0)
     # Next to it, another slide keeps its distance.
-    other = debris_flow(ground, 0.8, rng, length_m=15.0, depth_m=2.0, occupied=footprint)
+    other = place_slide(
+        "debris-flow", ground, 0.8, rng, length_m=15.0, depth_m=2.0, occupied=footprint
+    )
     assert other is not None
     gap = ndimage.distance_transform_edt(~footprint)[other[1]].min()
     assert gap > 6

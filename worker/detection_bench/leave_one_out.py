@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from worker.detection_bench.aggregate import aggregate_report
-from worker.detection_bench.detections import GridDetections, read_detections
+from worker.detection_bench.detections import read_detections
 from worker.detection_bench.metrics import score_pair
-from worker.detection_bench.runner import KINDS, PairGenerator, describe_run
+from worker.detection_bench.runner import KINDS, PairGenerator, describe_run, failed_run
 from worker.detection_bench.scorer_training import (
     collect_candidates,
     save_scorer,
@@ -136,13 +136,7 @@ def _score_run(
             run_dir / comparison.DETECTIONS, pair.transform, pair.shape, PAIR_CRS
         )
     except Exception as exc:  # a failure is a result of the benchmark, not its end
-        return {
-            "ok": False,
-            "error": f"{type(exc).__name__}: {exc}",
-            "seconds": None,
-            "comparison": None,
-            **score_pair(pair, GridDetections.empty(pair.shape)),
-        }
+        return failed_run(pair, exc)
     return {
         "ok": True,
         "error": None,

@@ -144,13 +144,7 @@ def run_method(
         result = comparison.compare_dsms(folder / "pre.tif", folder / "post.tif", run_dir, options)
         detections = read_detections(result.detections_path, pair.transform, pair.shape, PAIR_CRS)
     except Exception as exc:  # any failure is a result of the benchmark, not its end
-        return {
-            "ok": False,
-            "error": f"{type(exc).__name__}: {exc}",
-            "seconds": None,
-            "comparison": None,
-            **score_pair(pair, GridDetections.empty(pair.shape)),
-        }
+        return failed_run(pair, exc)
     seconds = time.perf_counter() - start
     return {
         "ok": True,
@@ -162,6 +156,17 @@ def run_method(
             "lod_m": result.results.get("difference", {}).get("lod_m"),
         },
         **score_pair(pair, detections),
+    }
+
+
+def failed_run(pair: DsmPair, exc: Exception) -> dict[str, Any]:
+    """A run whose method raised: its error, scored as if nothing was detected."""
+    return {
+        "ok": False,
+        "error": f"{type(exc).__name__}: {exc}",
+        "seconds": None,
+        "comparison": None,
+        **score_pair(pair, GridDetections.empty(pair.shape)),
     }
 
 

@@ -744,111 +744,24 @@ def _attempt_path(
 SlideArrays = tuple[np.ndarray, np.ndarray, SlideTruth]
 
 
-def _one(
+def place_slide(
     kind: str,
     ground: np.ndarray,
     pixel_size: float,
     rng: np.random.Generator,
     length_m: float,
     depth_m: float,
-    width_m: float | None,
-    occupied: np.ndarray | None,
-    slide_id: int,
+    width_m: float | None = None,
+    occupied: np.ndarray | None = None,
+    slide_id: int = 1,
 ) -> SlideArrays | None:
+    """A slide of `kind` (one of KINDS) placed on `ground`: (dh, footprint, truth), or None
+    when it cannot fit. `length_m` is the slide's length; for a debris flow its source's,
+    for a rockfall its scar's."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown slide kind {kind!r}; kinds are {', '.join(KINDS)}")
     width = length_m * float(np.mean(WIDTH_RATIO[kind])) if width_m is None else width_m
     slide = make_slide(SlidePlan(kind, length_m, width, depth_m), ground, pixel_size, rng, occupied)
     if slide is None:
         return None
     return slide.dh, slide.footprint, slide.truth(slide_id, pixel_size)
-
-
-def rotational(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A slump placed on `ground`: (dh, footprint, truth), or None if it cannot fit."""
-    return _one(
-        "rotational", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id
-    )
-
-
-def translational(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A sliding slab placed on `ground`: (dh, footprint, truth), or None."""
-    return _one(
-        "translational", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id
-    )
-
-
-def debris_flow(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A debris flow whose source is `length_m` long: (dh, footprint, truth), or None."""
-    return _one(
-        "debris-flow", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id
-    )
-
-
-def rockfall(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A rockfall whose scar is `length_m` long: (dh, footprint, truth), or None."""
-    return _one("rockfall", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id)
-
-
-def shallow(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A shallow soil slip placed on `ground`: (dh, footprint, truth), or None."""
-    return _one("shallow", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id)
-
-
-def deep_seated(
-    ground: np.ndarray,
-    pixel_size: float,
-    rng: np.random.Generator,
-    length_m: float,
-    depth_m: float,
-    width_m: float | None = None,
-    occupied: np.ndarray | None = None,
-    slide_id: int = 1,
-) -> SlideArrays | None:
-    """A deep-seated slide placed on `ground`: (dh, footprint, truth), or None."""
-    return _one(
-        "deep-seated", ground, pixel_size, rng, length_m, depth_m, width_m, occupied, slide_id
-    )

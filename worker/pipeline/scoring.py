@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -36,8 +35,8 @@ from worker.pipeline.change_regions import (
 )
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
-from worker.pipeline.scorer import Scorer, load_scorer
-from worker.pipeline.vectorize import write_detections
+from worker.pipeline.scorer import load_scorer
+from worker.pipeline.vectorize import VectorizeResult, detection_totals, write_detections
 
 
 @dataclass
@@ -49,23 +48,12 @@ class ScoreOptions(RegionOptions):
 
 
 @dataclass
-class ScoreResult:
-    detections: int
+class ScoreResult(VectorizeResult):
+    """The LoD method's result fields, plus the scoring's."""
+
     candidates: int
-    total_area_m2: float
-    total_volume_loss_m3: float
-    total_volume_gain_m3: float
-    surface_changes: int
-    surface_change_area_m2: float
-    min_area_m2: float
     threshold: float
     model: str
-    method: str
-    crs: str
-    seconds: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def score_candidates(
@@ -100,21 +88,15 @@ def score_candidates(
     ]
     collection = write_detections(out_geojson, features, rasters.crs)
     progress(1.0)
-    props = [f["properties"] for f in collection["features"]]
     return ScoreResult(
-        detections=len(props),
-        candidates=len(regions),
-        total_area_m2=float(sum(p["area_m2"] for p in props)),
-        total_volume_loss_m3=float(sum(p["volume_loss_m3"] for p in props)),
-        total_volume_gain_m3=float(sum(p["volume_gain_m3"] for p in props)),
-        surface_changes=len(surface),
-        surface_change_area_m2=round(float(sum(r.geometry.area for r in surface)), 2),
+        **detection_totals(collection, surface),
         min_area_m2=round(min_area_m2(rasters, options), 3),
-        threshold=threshold,
-        model=scorer.reference,
         method=method,
         crs=crs_to_string(rasters.crs),
         seconds=time.perf_counter() - start,
+        candidates=len(regions),
+        threshold=threshold,
+        model=scorer.reference,
     )
 
 
@@ -148,7 +130,3 @@ def area_significant(rasters: ChangeRasters, options: ScoreOptions) -> np.ndarra
         candidate &= np.abs(z) > options.min_pixel_z
         candidate &= np.sign(z) == np.sign(mean)
     return clean_mask(candidate, options)
-
-
-def scorer_for(options: ScoreOptions) -> Scorer:
-    return load_scorer(Path(options.scorer) if options.scorer else None)

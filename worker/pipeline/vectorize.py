@@ -100,19 +100,26 @@ def vectorize(
     ]
     collection = write_detections(out_geojson, features, rasters.crs)
     progress(1.0)
-    props = [f["properties"] for f in collection["features"]]
     return VectorizeResult(
-        detections=len(props),
-        total_area_m2=float(sum(p["area_m2"] for p in props)),
-        total_volume_loss_m3=float(sum(p["volume_loss_m3"] for p in props)),
-        total_volume_gain_m3=float(sum(p["volume_gain_m3"] for p in props)),
-        surface_changes=len(surface),
-        surface_change_area_m2=round(float(sum(r.geometry.area for r in surface)), 2),
+        **detection_totals(collection, surface),
         min_area_m2=round(smallest, 3),
         method=method,
         crs=crs_to_string(rasters.crs),
         seconds=time.perf_counter() - start,
     )
+
+
+def detection_totals(collection: dict[str, Any], surface: list[Region]) -> dict[str, Any]:
+    """The result fields that sum the written detections and the set-aside surface changes."""
+    props = [f["properties"] for f in collection["features"]]
+    return {
+        "detections": len(props),
+        "total_area_m2": float(sum(p["area_m2"] for p in props)),
+        "total_volume_loss_m3": float(sum(p["volume_loss_m3"] for p in props)),
+        "total_volume_gain_m3": float(sum(p["volume_gain_m3"] for p in props)),
+        "surface_changes": len(surface),
+        "surface_change_area_m2": round(float(sum(r.geometry.area for r in surface)), 2),
+    }
 
 
 def write_detections(out_geojson: Path, features: list[dict[str, Any]], crs: Any) -> dict:
