@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from backend.config import Settings, get_settings
+from worker.pipeline.detection_methods import load_method_modules
 
 ADMIN_TOKEN_FILE = "admin-token"
 ADMIN_PASSWORD_FILE = "admin-password"
@@ -18,6 +19,8 @@ ADMIN_PASSWORD_FILE = "admin-password"
 @click.group()
 def main() -> None:
     """slidewatch: landslide detection from multi-temporal drone surveys."""
+    # Before a subcommand parses its options: `detect --method` offers registered methods.
+    load_method_modules(get_settings().detection_method_modules)
 
 
 @main.command()
@@ -36,7 +39,7 @@ def migrate() -> None:
 def create_token_command(name: str) -> None:
     """Create an API token and print it (it is shown only this once)."""
     from backend.db.session import session_scope
-    from backend.security import create_token
+    from backend.db.tokens import create_token
 
     with session_scope() as session:
         token = create_token(session, name)
@@ -119,7 +122,7 @@ def beat() -> None:
 def ensure_admin_token(settings: Settings) -> str | None:
     """On first start create a token and keep it in the data directory for the operator."""
     from backend.db.session import session_scope
-    from backend.security import create_token, has_tokens
+    from backend.db.tokens import create_token, has_tokens
 
     token_file = settings.data_dir / ADMIN_TOKEN_FILE
     with session_scope() as session:

@@ -15,6 +15,12 @@ class Settings(BaseSettings):
         description="Root of everything slidewatch keeps on disk: the SQLite database and "
         "broker of the embedded default, uploaded files and products.",
     )
+    detection_method_modules: list[str] = Field(
+        default_factory=list,
+        description="Python modules that register detection methods kept outside slidewatch "
+        "(each calls worker.pipeline.detection_methods.register_method when imported); "
+        'as JSON, e.g. ["my_methods.slope_units"].',
+    )
     database_url: str | None = Field(
         default=None,
         description="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db. "

@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from worker.pipeline.comparison import STAGES, ComparisonOptions, run_stage
+from worker.pipeline.comparison import ComparisonOptions, run_stage, stages_for
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 
 
@@ -31,7 +31,7 @@ def run(
     stage_seconds: dict[str, float] = {}
     results: dict[str, dict] = {}
     total_start = time.perf_counter()
-    for stage in STAGES:
+    for stage in stages_for(options.method):
         start = time.perf_counter()
         results[stage] = run_stage(stage, paths.pre, paths.post, work_dir / "work", options)
         stage_seconds[stage] = round(time.perf_counter() - start, 3)

@@ -6,7 +6,7 @@ TRUTH.tif is a simulator truth DSM (e.g. step1/truth/dsm.tif of `slidewatch simu
 RECONSTRUCTED.tif the DSM that `slidewatch reconstruct` (or `slidewatch bench
 reconstruction`) made from the same survey's video. Both are compared with the threshold
 comparison (align + co-registration, as the detector sees them), and so is the truth DSM
-degraded by worker/pipeline/cnn/recon_noise.py: NMAD and tails of Δh for each.
+degraded by worker/training/recon_noise.py: NMAD and tails of Δh for each.
 """
 
 import sys
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from worker.pipeline.cnn.recon_noise import degrade
 from worker.pipeline.comparison import ComparisonOptions, compare_dsms
 from worker.pipeline.raster_io import read_elevation, write_geotiff
+from worker.training.recon_noise import degrade
 
 
 def error_stats(truth: Path, post: Path, work: Path, label: str) -> None:

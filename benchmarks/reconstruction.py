@@ -58,7 +58,6 @@ from typing import Any
 import numpy as np
 import rasterio
 
-from worker.pipeline.cnn.reconstructed_data import register_to_truth
 from worker.pipeline.georef import umeyama
 from worker.pipeline.reconstruction import (
     ReconstructionInputs,
@@ -77,6 +76,7 @@ from worker.simulator.gnss import (
 )
 from worker.simulator.manifest import Manifest
 from worker.simulator.simulate import SimulationOptions, simulate_scenario
+from worker.training.reconstructed_data import register_to_truth
 
 PAPER_TABLE1_M = {"east": 0.77, "north": 1.06, "up": 1.22}
 SCENARIOS = ("paper-mounds", "hillslope")

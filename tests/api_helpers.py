@@ -6,7 +6,15 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
+from backend.config import get_settings
+from backend.db.session import get_sessionmaker
+from worker.jobs.context import JobContext
 from worker.jobs.runner import execute_stage
+
+
+def job_context() -> JobContext:
+    """The job context of this test process's settings, as a worker builds its own."""
+    return JobContext.from_settings(get_settings(), get_sessionmaker())
 
 
 def upload_dsm(
@@ -26,7 +34,7 @@ def run_job_inline(job_id: int, first_stage: str = "align") -> None:
     """Run every stage of a job in this process, exactly as a worker would."""
     stage: str | None = first_stage
     while stage is not None:
-        stage = execute_stage(job_id, stage)
+        stage = execute_stage(job_context(), job_id, stage)
 
 
 def create_video_upload(

@@ -28,7 +28,7 @@ from backend.db.models import (
     SurveyKind,
     SurveyStatus,
 )
-from backend.security import create_token
+from backend.db.tokens import create_token
 from tests.api_helpers import run_job_inline, upload_dsm
 from worker.simulator.dsm_pair import DsmPairPaths
 

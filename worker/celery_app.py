@@ -1,4 +1,14 @@
-"""The Celery application. Configuration comes from the SLIDEWATCH_* settings."""
+"""The Celery applications and the names of the queue and its tasks.
+
+Two kinds of Celery app, one configuration (`celery_config`):
+
+- `create_celery(settings)`: a client that sends tasks by name, made by the API's app
+  factory, the CLI and the alert queueing from the settings they were given.
+- `app`: the worker's app, on which the task modules register their tasks when they are
+  imported; `celery --app worker.celery_app:app` runs it (backend/cli.py). It reads the
+  SLIDEWATCH_* settings when Celery first needs its configuration, not at import: the API
+  imports task names from these modules and must not read the environment through them.
+"""
 
 from celery import Celery
 
@@ -7,10 +17,10 @@ from backend.config import Settings, get_settings
 RUN_STAGE_TASK = "slidewatch.run_stage"
 RECOVER_TASK = "slidewatch.recover_stalled_jobs"
 DELIVER_TASK = "slidewatch.deliver"
-BUILD_REPORT_TASK = "slidewatch.build_report"
 MONITORING_TICK_TASK = "slidewatch.monitoring_tick"
-TRAIN_MODEL_TASK = "slidewatch.train_model"
 QUEUE = "slidewatch"
+# Reports and model training are jobs: their stages run as RUN_STAGE_TASK (worker.tasks).
+TASK_MODULES = ["worker.tasks", "worker.tasks_monitoring"]
 
 
 def transport_options(settings: Settings) -> dict[str, object]:
@@ -19,13 +29,9 @@ def transport_options(settings: Settings) -> dict[str, object]:
     return {"visibility_timeout": settings.broker_visibility_timeout_s}
 
 
-def create_celery(settings: Settings) -> Celery:
-    app = Celery(
-        "slidewatch",
-        broker=settings.resolved_broker_url,
-        include=["worker.tasks", "worker.tasks_monitoring", "worker.tasks_training"],
-    )
-    app.conf.update(
+def celery_config(settings: Settings) -> dict[str, object]:
+    return dict(
+        broker_url=settings.resolved_broker_url,
         # A task is acknowledged only when it has finished, so a worker that dies
         # mid-stage leaves the message to be delivered again.
         task_acks_late=True,
@@ -51,7 +57,20 @@ def create_celery(settings: Settings) -> Celery:
             },
         },
     )
-    return app
 
 
-app = create_celery(get_settings())
+def create_celery(settings: Settings) -> Celery:
+    client = Celery("slidewatch", include=TASK_MODULES)
+    client.config_from_object(celery_config(settings))
+    return client
+
+
+def _worker_config() -> dict[str, object]:
+    # The worker process's composition root: its settings come from the environment.
+    return celery_config(get_settings())
+
+
+app = Celery("slidewatch", include=TASK_MODULES)
+# A callable is a promise that Celery evaluates when it first loads the configuration
+# (Celery.add_defaults); an invalid setting still stops the worker at start-up.
+app.add_defaults(_worker_config)

@@ -1,18 +1,31 @@
-"""Celery tasks: thin adapters that run job stages and the recovery sweep."""
+"""Celery tasks: thin adapters that run job stages and the recovery sweep.
+
+This module is the worker's composition root: the settings are read here, once, into the
+process's JobContext that the stage runner and the job kinds are given.
+"""
 
 import logging
+from functools import lru_cache
 
 from celery import Task
-from celery.signals import worker_ready
+from celery.signals import worker_init, worker_ready
 
 from backend.config import get_settings
-from backend.db.session import session_scope
+from backend.db.session import get_sessionmaker
+from backend.wiring import wire
 from worker.celery_app import RECOVER_TASK, RUN_STAGE_TASK, app
 from worker.dispatch import dispatch_stage
+from worker.jobs.context import JobContext
 from worker.jobs.recovery import stalled_stages
 from worker.jobs.runner import execute_stage, fail_job, record_retry
 
 log = logging.getLogger(__name__)
+
+
+@lru_cache(maxsize=1)
+def job_context() -> JobContext:
+    """The worker process's context (its settings, storage and session factory)."""
+    return JobContext.from_settings(get_settings(), get_sessionmaker())
 
 
 def retry_delay_s(retries: int) -> float:
@@ -22,40 +35,48 @@ def retry_delay_s(retries: int) -> float:
 
 @app.task(bind=True, name=RUN_STAGE_TASK)
 def run_stage(self: Task, job_id: int, stage: str) -> None:
-    settings = get_settings()
+    context = job_context()
+    settings = context.settings
     try:
-        next_stage = execute_stage(job_id, stage)
+        next_stage = execute_stage(context, job_id, stage)
     except Exception as exc:
         reason = f"{type(exc).__name__}: {exc}"
         if self.request.retries >= settings.task_max_retries:
             log.exception("stage %s of job %s failed for good", stage, job_id)
-            fail_job(job_id, stage, f"failed after {self.request.retries + 1} attempts: {reason}")
+            attempts = self.request.retries + 1
+            fail_job(context, job_id, stage, f"failed after {attempts} attempts: {reason}")
             return
         delay = retry_delay_s(self.request.retries)
         log.warning(
             "stage %s of job %s failed (%s); retrying in %.0f s", stage, job_id, reason, delay
         )
-        record_retry(job_id, stage, reason, delay)
+        record_retry(context, job_id, stage, reason, delay)
         raise self.retry(exc=exc, countdown=delay, max_retries=settings.task_max_retries) from exc
     if next_stage is not None:
-        with session_scope() as session:
+        with context.session_scope() as session:
             dispatch_stage(app, session, job_id, next_stage)
 
 
 @app.task(name=RECOVER_TASK)
 def recover_stalled_jobs() -> int:
     """Queue again every stage whose worker or message was lost; return how many."""
-    with session_scope() as session:
-        stalled = stalled_stages(session, get_settings().stale_stage_after_s)
+    context = job_context()
+    with context.session_scope() as session:
+        stalled = stalled_stages(session, context.settings.stale_stage_after_s)
         for job_id, stage in stalled:
             log.warning("requeueing stalled stage %s of job %s", stage, job_id)
             dispatch_stage(app, session, job_id, stage)
     return len(stalled)
 
 
+@worker_init.connect
+def _wire(**_kwargs: object) -> None:
+    wire(job_context().settings)
+
+
 @worker_ready.connect
 def _recover_on_start(**_kwargs: object) -> None:
     # The embedded broker does not redeliver a message taken by a worker that was killed:
     # sweep at start-up, so that a restarted worker picks such jobs up again.
-    if get_settings().broker_is_embedded:
+    if job_context().settings.broker_is_embedded:
         recover_stalled_jobs.delay()

@@ -29,14 +29,15 @@ from backend.api.routes import (
 from backend.config import Settings, get_settings
 from backend.db.session import make_engine
 from backend.storage import LocalStorage
+from backend.urls import API_PREFIX
+from backend.wiring import wire
 from worker.celery_app import create_celery
-
-API_PREFIX = "/api/v1"
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
+    wire(settings)
     app = FastAPI(
         title="slidewatch",
         version="0.1.0",
@@ -45,7 +46,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         "`Authorization: Bearer <token>` (create one with `slidewatch create-token`), or, "
         "for GIS clients that cannot send headers, `?api_key=<token>` (query strings end up "
         "in access logs: prefer the header). GIS users: OGC API – Features at `/ogc`, "
-        "STAC at `/stac/catalog.json`, map tiles and WMTS under `/api/v1/sites/{id}`.",
+        f"STAC at `/stac/catalog.json`, map tiles and WMTS under `{API_PREFIX}/sites/{{id}}`.",
     )
     engine = make_engine(settings.resolved_database_url)
     app.state.settings = settings

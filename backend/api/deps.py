@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 
 from backend.config import Settings
 from backend.db.models import ApiToken, Site
-from backend.security import authenticate
+from backend.db.tokens import authenticate
 from backend.storage import LocalStorage
 
 Owned = TypeVar("Owned")

@@ -7,7 +7,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
-from worker.pipeline.comparison import METHOD_SUMMARIES, METHODS
+from worker.pipeline.detection_methods import detection_methods
 
 
 class ORMModel(BaseModel):
@@ -112,7 +112,7 @@ class SurveyFileOut(ORMModel):
 
 # The methods' one-line summaries come from the library, so the API's documentation
 # says what GET /methods and the page say.
-_METHODS_DOC = " ".join(f"`{name}`: {METHOD_SUMMARIES[name]}" for name in METHODS)
+_METHODS_DOC = " ".join(f"`{m.name}`: {m.summary}" for m in detection_methods())
 
 
 class ComparisonCreate(BaseModel):
@@ -121,8 +121,7 @@ class ComparisonCreate(BaseModel):
     method: str | None = Field(
         default=None,
         description=f"Detection method. {_METHODS_DOC} Without one, the default of "
-        "`GET /methods` (`scored` when its scorer ships with the installation, else "
-        "`threshold`). A cnn comparison runs the default detection model unless its "
+        "`GET /methods`. A cnn comparison runs the default detection model unless its "
         'parameters name one: {"cnn": {"model": "name@version"}} (see GET /models); a '
         "scored comparison runs the shipped scorer.",
     )
@@ -178,6 +177,7 @@ class ComparisonOut(ORMModel):
 
 class StageRunOut(ORMModel):
     stage: str
+    help: str = Field(default="", description="What the stage does, in one line.")
     state: StageState
     progress: float
     attempts: int

@@ -37,7 +37,13 @@ class TrainingCreate(BaseModel):
 class TrainingOut(BaseModel):
     run: str
     name: str
-    state: str = Field(description="queued, running, succeeded or failed")
+    kind: str = Field(description="The model kind trained (slidenet, patchnet-...)")
+    state: str = Field(description="queued, running, succeeded or failed: its job's state")
     model: str | None = Field(default=None, description='"name@version" once registered')
-    error: str | None = None
+    error: str | None = Field(default=None, description="Why it failed, stage first")
+    metrics: dict[str, Any] | None = Field(
+        default=None, description="Once trained: validation metrics, seconds, epochs run"
+    )
+    job_id: int | None = Field(default=None, description="The job that runs it")
+    progress: float = Field(default=0.0, description="0-1, over both stages")
     status_url: str

@@ -164,6 +164,9 @@ class ReportOut(BaseModel):
     comparison_id: int | None
     trigger: str
     status: JobState
+    job_id: int | None = Field(
+        default=None, description="The job that builds it: its stage, progress and events."
+    )
     summary: dict[str, Any] | None
     error: str | None
     created_at: datetime

@@ -10,12 +10,12 @@ from backend.api.schemas import (
     StageRunOut,
     StoredFileOut,
 )
+from backend.db import detections
 from backend.db.models import Comparison, Detection, Job, Product
 from backend.services.comparisons import detection_info
 from backend.services.feedback import feedback_summary
-from backend.services.jobs import job_progress
-
-API_PREFIX = "/api/v1"
+from backend.urls import api_url
+from worker.jobs.control import job_progress, stage_help
 
 
 def product_out(product: Product) -> ProductOut:
@@ -26,7 +26,7 @@ def product_out(product: Product) -> ProductOut:
         comparison_id=product.comparison_id,
         crs=product.crs,
         file=StoredFileOut.model_validate(product.file),
-        download_url=f"{API_PREFIX}/sites/{product.site_id}/products/{product.id}/file",
+        download_url=api_url("sites", product.site_id, "products", product.id, "file"),
         created_at=product.created_at,
     )
 
@@ -44,7 +44,10 @@ def job_out(job: Job) -> JobOut:
         created_at=job.created_at,
         started_at=job.started_at,
         finished_at=job.finished_at,
-        stages=[StageRunOut.model_validate(run) for run in job.stages],
+        stages=[
+            StageRunOut.model_validate(run).model_copy(update={"help": stage_help(job, run.stage)})
+            for run in job.stages
+        ],
     )
 
 
@@ -56,22 +59,5 @@ def comparison_out(comparison: Comparison, job: Job | None) -> ComparisonOut:
 
 
 def detection_feature(detection: Detection) -> dict[str, Any]:
-    return {
-        "type": "Feature",
-        "id": detection.id,
-        "geometry": detection.geometry,
-        "properties": {
-            "comparison_id": detection.comparison_id,
-            "area_m2": detection.area_m2,
-            "volume_loss_m3": detection.volume_loss_m3,
-            "volume_gain_m3": detection.volume_gain_m3,
-            "max_abs_dh_m": detection.max_abs_dh_m,
-            "score": detection.score,
-            "method": detection.method,
-            "model_version": detection.model_version,
-            # 95 % intervals of area and volumes and the LoD over the polygon; None where the
-            # method gives none (cnn).
-            "uncertainty": detection.uncertainty,
-            "feedback": feedback_summary(detection),
-        },
-    }
+    """The stored record (as in the product file) and what people said about it."""
+    return detections.detection_feature(detection, {"feedback": feedback_summary(detection)})

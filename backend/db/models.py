@@ -250,16 +250,30 @@ class Detection(Base):
 
 
 class Job(Base):
+    """Background work run stage by stage (worker/jobs/runner.py) for one owner row: a
+    comparison, a survey (reconstruction), a report or a training run."""
+
     __tablename__ = "jobs"
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    site_id: Mapped[int] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    # NULL for the jobs of no site: model training (models are shared by every site).
+    site_id: Mapped[int | None] = mapped_column(
+        ForeignKey("sites.id", ondelete="CASCADE"), index=True
+    )
     kind: Mapped[str] = mapped_column(String(32))
     comparison_id: Mapped[int | None] = mapped_column(
         ForeignKey("comparisons.id", ondelete="CASCADE"), index=True
     )
     survey_id: Mapped[int | None] = mapped_column(
         ForeignKey("surveys.id", ondelete="CASCADE"), index=True
+    )
+    # Unique: a report or a training run has one job, run again (retried) as a whole, so
+    # that two monitoring ticks cannot both create one for the same report.
+    report_id: Mapped[int | None] = mapped_column(
+        ForeignKey("reports.id", ondelete="CASCADE"), index=True, unique=True
+    )
+    training_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("training_runs.id", ondelete="CASCADE"), index=True, unique=True
     )
     state: Mapped[JobState] = mapped_column(_enum(JobState, "job_state"), index=True)
     error: Mapped[str | None] = mapped_column(Text)
@@ -372,11 +386,12 @@ class Report(Base):
     html_file_id: Mapped[int | None] = mapped_column(ForeignKey("stored_files.id"))
     error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
-    started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]
 
     pdf_file: Mapped[StoredFile | None] = relationship(foreign_keys=[pdf_file_id])
     html_file: Mapped[StoredFile | None] = relationship(foreign_keys=[html_file_id])
+    # The job that builds it (kind "report"); its stage runs say how far the build is.
+    job: Mapped[Job | None] = relationship(viewonly=True)
 
 
 class Delivery(Base):
@@ -520,3 +535,25 @@ class ModelVersion(Base):
     card: Mapped[dict[str, Any]]
     is_default: Mapped[bool] = mapped_column(Boolean, default=False)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class TrainingRun(Base):
+    """One training of a detection model in the worker: what was asked for and, once the
+    model is registered, its "name@version". Its job (kind "training") says where it
+    stands; the weights and checkpoints live in storage under models/<name>/<run>/."""
+
+    __tablename__ = "training_runs"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    run: Mapped[str] = mapped_column(String(32), unique=True)  # the id the API hands out
+    name: Mapped[str] = mapped_column(String(100))
+    model_kind: Mapped[str] = mapped_column(String(32))
+    dataset: Mapped[str] = mapped_column(String(1024))  # manifest, relative to storage
+    seed: Mapped[int] = mapped_column(Integer, default=0)
+    options: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    make_default: Mapped[bool] = mapped_column(Boolean, default=False)
+    model: Mapped[str | None] = mapped_column(String(200))
+    metrics: Mapped[dict[str, Any] | None]  # validation metrics, seconds, epochs run
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    job: Mapped[Job | None] = relationship(viewonly=True)

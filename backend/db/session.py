@@ -43,9 +43,10 @@ def get_sessionmaker() -> sessionmaker[Session]:
 
 
 @contextmanager
-def session_scope() -> Iterator[Session]:
-    """A session that commits on success and rolls back on error."""
-    session = get_sessionmaker()()
+def session_scope(sessions: sessionmaker[Session] | None = None) -> Iterator[Session]:
+    """A session (of `sessions`, else the configured database's) that commits on success
+    and rolls back on error."""
+    session = (sessions or get_sessionmaker())()
     try:
         yield session
         session.commit()

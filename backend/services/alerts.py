@@ -29,7 +29,6 @@ import time
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from email.message import EmailMessage
-from functools import lru_cache
 from typing import Any
 
 import httpx
@@ -37,7 +36,7 @@ from celery import Celery
 from sqlalchemy import event, select, update
 from sqlalchemy.orm import Session
 
-from backend.config import Settings, get_settings
+from backend.config import Settings
 from backend.db.models import (
     AlertSettings,
     Comparison,
@@ -53,6 +52,7 @@ from backend.db.models import (
 )
 from backend.signing import SIGNATURE_HEADER, TIMESTAMP_HEADER, sign
 from backend.storage import LocalStorage
+from backend.urls import api_url
 
 log = logging.getLogger(__name__)
 
@@ -123,15 +123,16 @@ def detection_summary(detection: Detection) -> dict[str, Any]:
     }
 
 
-def comparison_succeeded(session: Session, comparison: Comparison) -> list[Delivery]:
+def comparison_succeeded(
+    session: Session, comparison: Comparison, settings: Settings
+) -> list[Delivery]:
     """Alert when the comparison found landslides above the site's thresholds."""
     rules = alert_settings(session, comparison.site_id)
     found = above_thresholds(rules, list(comparison.detections))
     if not found:
         return []
-    settings = get_settings()
     site = session.get(Site, comparison.site_id)
-    api = f"/api/v1/sites/{comparison.site_id}/comparisons/{comparison.id}"
+    api = api_url("sites", comparison.site_id, "comparisons", comparison.id)
     payload = {
         "event": "landslides_detected",
         "site": {"id": site.id, "name": site.name},
@@ -160,18 +161,23 @@ def comparison_succeeded(session: Session, comparison: Comparison) -> list[Deliv
         f"{'s' if len(found) != 1 else ''} detected (comparison {comparison.id})"
     )
     return create_deliveries(
-        session, site, "landslides_detected", f"comparison:{comparison.id}", payload, subject
+        session,
+        settings,
+        site,
+        "landslides_detected",
+        f"comparison:{comparison.id}",
+        payload,
+        subject,
     )
 
 
-def job_failed(session: Session, job: Job) -> list[Delivery]:
+def job_failed(session: Session, job: Job, settings: Settings) -> list[Delivery]:
     rules = alert_settings(session, job.site_id)
     if not rules.notify_job_failures:
         return []
     site = session.get(Site, job.site_id)
     if site is None:
         return []
-    settings = get_settings()
     failed_at = _iso(job.finished_at) or _iso(utcnow())
     payload = {
         "event": "job_failed",
@@ -184,19 +190,18 @@ def job_failed(session: Session, job: Job) -> list[Delivery]:
             "error": job.error,
             "failed_at": failed_at,
         },
-        "links": _links(settings, site.id, job=f"/api/v1/sites/{site.id}/jobs/{job.id}"),
+        "links": _links(settings, site.id, job=api_url("sites", site.id, "jobs", job.id)),
     }
     subject = f"[slidewatch] {site.name}: {job.kind} job {job.id} failed"
     # A job retried and failed again is a new event: the failure time is part of the key.
     return create_deliveries(
-        session, site, "job_failed", f"job:{job.id}:{failed_at}", payload, subject
+        session, settings, site, "job_failed", f"job:{job.id}:{failed_at}", payload, subject
     )
 
 
-def report_ready(session: Session, report: Report) -> list[Delivery]:
+def report_ready(session: Session, report: Report, settings: Settings) -> list[Delivery]:
     site = session.get(Site, report.site_id)
-    settings = get_settings()
-    api = f"/api/v1/sites/{site.id}/reports/{report.id}"
+    api = api_url("sites", site.id, "reports", report.id)
     summary = report.summary or {}
     payload = {
         "event": "report_ready",
@@ -214,12 +219,20 @@ def report_ready(session: Session, report: Report) -> list[Delivery]:
     }
     subject = f"[slidewatch] {site.name}: report {report.id}"
     return create_deliveries(
-        session, site, "report_ready", f"report:{report.id}", payload, subject, report=report
+        session,
+        settings,
+        site,
+        "report_ready",
+        f"report:{report.id}",
+        payload,
+        subject,
+        report=report,
     )
 
 
 def create_deliveries(
     session: Session,
+    settings: Settings,
     site: Site,
     event_name: str,
     event_key: str,
@@ -228,7 +241,6 @@ def create_deliveries(
     report: Report | None = None,
 ) -> list[Delivery]:
     """One delivery per target that wants this event; queued once the session commits."""
-    settings = get_settings()
     created: list[Delivery] = []
     webhooks = session.scalars(
         select(Webhook).where(Webhook.site_id == site.id, Webhook.active.is_(True))
@@ -263,40 +275,41 @@ def create_deliveries(
         created.append(delivery)
     if created:
         session.flush()
-        queue_after_commit(session, [d.id for d in created])
+        queue_after_commit(session, settings, [d.id for d in created])
     return created
-
-
-def guarded(hook, session: Session, *args: Any) -> list[Delivery]:
-    """Run an event hook in a savepoint: a broken alert never undoes the job's own update."""
-    try:
-        with session.begin_nested():
-            return hook(session, *args)
-    except Exception:
-        log.exception("could not create the alerts of %s", hook.__name__)
-        return []
 
 
 # --- queueing ---------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=4)
-def _celery(broker_url: str) -> Celery:
+# Celery clients by broker URL: each keeps its own connection pool, so one is made per
+# broker and reused by every delivery queued in this process.
+_clients: dict[str, Celery] = {}
+
+
+def _celery(settings: Settings) -> Celery:
     from worker.celery_app import create_celery
 
-    return create_celery(get_settings())
+    broker_url = settings.resolved_broker_url
+    if broker_url not in _clients:
+        _clients[broker_url] = create_celery(settings)
+    return _clients[broker_url]
 
 
-def send_delivery_task(delivery_id: int, countdown: float | None = None) -> None:
+def send_delivery_task(
+    settings: Settings, delivery_id: int, countdown: float | None = None
+) -> None:
     from worker.celery_app import DELIVER_TASK, QUEUE
 
-    celery = _celery(get_settings().resolved_broker_url)
+    celery = _celery(settings)
     celery.send_task(DELIVER_TASK, args=[delivery_id], queue=QUEUE, countdown=countdown)
 
 
-def queue_after_commit(session: Session, delivery_ids: list[int]) -> None:
+def queue_after_commit(session: Session, settings: Settings, delivery_ids: list[int]) -> None:
     """Queue the deliveries' tasks once `session` commits (never for a rolled-back one)."""
     pending: list[int] = session.info.setdefault("deliveries_to_queue", [])
+    # The after-commit listener gets the session alone: it finds the broker here.
+    session.info["deliveries_settings"] = settings
     if not session.info.get("deliveries_listener"):
         event.listen(session, "after_commit", _queue_pending)
         event.listen(session, "after_rollback", _forget_pending)
@@ -306,9 +319,10 @@ def queue_after_commit(session: Session, delivery_ids: list[int]) -> None:
 
 def _queue_pending(session: Session) -> None:
     ids = session.info.pop("deliveries_to_queue", [])
+    settings = session.info.get("deliveries_settings")
     for delivery_id in ids:
         try:
-            send_delivery_task(delivery_id)
+            send_delivery_task(settings, delivery_id)
         except Exception:  # the sweep of overdue deliveries queues it again
             log.warning("could not queue delivery %s", delivery_id, exc_info=True)
 
@@ -317,10 +331,12 @@ def _forget_pending(session: Session) -> None:
     session.info.pop("deliveries_to_queue", None)
 
 
-def overdue_deliveries(session: Session, now: datetime | None = None) -> list[int]:
+def overdue_deliveries(
+    session: Session, settings: Settings, now: datetime | None = None
+) -> list[int]:
     """Deliveries whose next attempt is well past due: their message or worker was lost."""
     now = now or utcnow()
-    grace = timedelta(seconds=max(60.0, get_settings().webhook_timeout_s * 3))
+    grace = timedelta(seconds=max(60.0, settings.webhook_timeout_s * 3))
     return list(
         session.scalars(
             select(Delivery.id).where(
@@ -364,9 +380,10 @@ def _claim_attempt(session: Session, delivery: Delivery, settings: Settings) -> 
     return attempt if claimed.rowcount == 1 else None
 
 
-def attempt_delivery(delivery_id: int, session_factory, storage: LocalStorage) -> AttemptOutcome:
+def attempt_delivery(
+    delivery_id: int, session_factory, storage: LocalStorage, settings: Settings
+) -> AttemptOutcome:
     """Make the next attempt of a delivery and record it; say whether to retry and when."""
-    settings = get_settings()
     with session_factory() as session:
         delivery = session.get(Delivery, delivery_id)
         if delivery is None or delivery.status in (DeliveryStatus.delivered, DeliveryStatus.failed):

@@ -7,20 +7,12 @@ from celery import Celery
 from shapely.geometry import shape
 from sqlalchemy.orm import Session
 
+from backend.db import model_registry
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
-from backend.services import models
-from backend.services.jobs import QueueUnavailable, new_job, start_job
-from worker.jobs.comparison import ComparisonJob
-from worker.pipeline.comparison import (
-    METHOD_SUMMARIES,
-    METHODS,
-    STAGES_BY_METHOD,
-    ComparisonOptions,
-    default_method,
-    stages_for,
-)
+from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
+from worker.pipeline.comparison import ComparisonOptions, stages_for
+from worker.pipeline.detection_methods import default_method, detection_method, detection_methods
 from worker.pipeline.errors import InputError
-from worker.pipeline.scorer import shipped_scorer_available
 
 
 class ComparisonRejected(ValueError):
@@ -37,12 +29,12 @@ def list_methods() -> list[dict[str, Any]]:
     default = default_method()
     return [
         {
-            "name": name,
-            "summary": METHOD_SUMMARIES[name],
-            "stages": list(STAGES_BY_METHOD[name]),
-            "default": name == default,
+            "name": method.name,
+            "summary": method.summary,
+            "stages": list(stages_for(method.name)),
+            "default": method.name == default,
         }
-        for name in METHODS
+        for method in detection_methods()
     ]
 
 
@@ -64,15 +56,13 @@ def stage_results(comparison: Comparison, job: Job | None) -> dict[str, dict[str
 def detection_model(comparison: Comparison, results: Mapping[str, Mapping[str, Any]]) -> str | None:
     """ "name@version" of the model that found (or will find) the detections, if any.
 
-    scored: the scorer the score stage ran (known once it has run); cnn: the registered
-    model kept in the parameters at creation; threshold: none.
+    The one the detection stage ran (scored: its scorer; cnn: its network), else, before
+    it has run, the registered model kept in the parameters at creation (cnn); none for
+    a method without a model (threshold).
     """
-    if comparison.method == "scored":
-        return (results.get("score") or {}).get("model")
-    if comparison.method == "cnn":
-        ran = (results.get("detect") or {}).get("model")
-        return ran or ((comparison.parameters or {}).get("cnn") or {}).get("model")
-    return None
+    method = detection_method(comparison.method)
+    ran = (results.get(method.stage.name) or {}).get("model")
+    return ran or ((comparison.parameters or {}).get(method.options_key) or {}).get("model")
 
 
 def detection_info(comparison: Comparison, job: Job | None) -> dict[str, Any]:
@@ -92,34 +82,17 @@ def detection_info(comparison: Comparison, job: Job | None) -> dict[str, Any]:
 
 
 def _model_reference(session: Session, requested: str | None) -> str:
-    """The "name@version" a cnn comparison will run: the one requested (a registered
+    """The "name@version" a comparison's model will be: the one requested (a registered
     model, never a path) or the default; kept in the comparison's parameters."""
     if requested in (None, "", "default"):
-        row = models.default_model(session)
+        row = model_registry.default_model(session)
         if row is None:
             raise ComparisonRejected("no detection model is installed: use method threshold")
-        return models.reference(row)
+        return model_registry.reference(row)
     try:
-        return models.reference(models.find_model(session, requested))
-    except models.UnknownModel as exc:
+        return model_registry.reference(model_registry.find_model(session, requested))
+    except model_registry.UnknownModel as exc:
         raise ComparisonRejected(str(exc)) from None
-
-
-def _check_scorer(options: ComparisonOptions) -> None:
-    """A scored comparison runs the scorer that ships with the installation, nothing else.
-
-    A scorer path from an API user would be a file on the server opened by the worker;
-    as with detection models, only what the installation provides runs.
-    """
-    if options.score.scorer is not None:
-        raise ComparisonRejected(
-            "the scored method runs the scorer shipped with slidewatch; "
-            "parameters.score.scorer cannot be set over the API"
-        )
-    if not shipped_scorer_available():
-        raise ComparisonRejected(
-            "the scorer of the scored method is not installed: use method threshold"
-        )
 
 
 def _survey_of_site(session: Session, site: Site, survey_id: int, role: str) -> Survey:
@@ -145,9 +118,11 @@ def create_comparison(
     method: str | None,
     parameters: dict,
 ) -> tuple[Comparison, Job]:
-    method = method or default_method()
-    if method not in METHODS:
-        raise ComparisonRejected(f"unknown method {method!r}; choose one of: {', '.join(METHODS)}")
+    try:
+        chosen = detection_method(method or default_method())
+    except InputError as exc:
+        raise ComparisonRejected(str(exc)) from None
+    method = chosen.name
     if pre_survey_id == post_survey_id:
         raise ComparisonRejected("pre and post survey are the same survey")
     pre = _survey_of_site(session, site, pre_survey_id, "pre")
@@ -158,12 +133,12 @@ def create_comparison(
             raise ComparisonRejected(f"the DSMs of surveys {pre.id} and {post.id} do not overlap")
     try:
         options = ComparisonOptions.from_dict({**parameters, "method": method})
+        if chosen.check_request is not None:
+            chosen.check_request(options.detection)
     except (InputError, TypeError, ValueError) as exc:
         raise ComparisonRejected(f"invalid parameters: {exc}") from exc
-    if method == "cnn":
-        options.cnn.model = _model_reference(session, options.cnn.model)
-    if method == "scored":
-        _check_scorer(options)
+    if chosen.needs_model:
+        options.detection.model = _model_reference(session, options.detection.model)
 
     comparison = Comparison(
         site_id=site.id,
@@ -175,7 +150,7 @@ def create_comparison(
     )
     session.add(comparison)
     session.flush()
-    job = new_job(site.id, ComparisonJob.name, stages_for(method), comparison_id=comparison.id)
+    job = new_job(site.id, JobKindName.comparison, stages_for(method), comparison_id=comparison.id)
     session.add(job)
     session.commit()
     try:

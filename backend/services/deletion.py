@@ -17,8 +17,7 @@ from backend.db.models import (
     SurveyFile,
 )
 from backend.storage import LocalStorage
-from worker.jobs.comparison import comparison_folder
-from worker.jobs.reconstruction import survey_folder
+from backend.storage_layout import comparison_folder, site_uploads_folder, survey_folder
 
 
 class StillInUse(Exception):
@@ -80,7 +79,7 @@ def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> No
     files = _files_of(session, Product.survey_id == survey.id)
     files += _source_files_of(session, Survey.id == survey.id)
     files += _uploads_of(session, Survey.id == survey.id)
-    folder = survey_folder(survey)
+    folder = survey_folder(survey.site_id, survey.id)
     session.execute(delete(Survey).where(Survey.id == survey.id))
     _remove(session, storage, files, [folder])
 
@@ -94,7 +93,8 @@ def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
     files += _uploads_of(session, Survey.site_id == site.id)
     files += _report_files_of(session, site.id)
     folders = [comparison_folder(c) for c in comparison_ids]
-    folders += [survey_folder(s) for s in site.surveys]
-    folders.append(f"uploads/{site.id}")  # unfinished resumable uploads (services/uploads.py)
+    folders += [survey_folder(site.id, s.id) for s in site.surveys]
+    # Unfinished resumable uploads (services/uploads.py): no row points at their bytes.
+    folders.append(site_uploads_folder(site.id))
     session.execute(delete(Site).where(Site.id == site.id))
     _remove(session, storage, files, folders)

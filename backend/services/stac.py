@@ -26,11 +26,11 @@ from sqlalchemy.orm import Session
 from backend.db.models import Comparison, JobState, Product, Site, Survey
 from backend.geotiff import open_geotiff
 from backend.storage import LocalStorage
+from backend.urls import api_url
 from worker.pipeline.geo import geojson_rfc7946
 
 Href = Callable[[str], str]
 COG = pystac.MediaType.COG
-API_PREFIX = "/api/v1"
 
 ASSET_ROLES = {
     "dsm": (["data"], "DSM (Cloud-Optimized GeoTIFF, metres)"),
@@ -159,7 +159,7 @@ def _add_assets(
         roles, title = ASSET_ROLES.get(product.kind, (["data"], product.kind))
         is_raster = product.file.media_type.startswith("image/tiff")
         asset = pystac.Asset(
-            href=href(f"{API_PREFIX}/sites/{product.site_id}/products/{product.id}/file"),
+            href=href(api_url("sites", product.site_id, "products", product.id, "file")),
             title=title,
             media_type=COG if is_raster else pystac.MediaType.GEOJSON,
             roles=roles,
@@ -246,7 +246,7 @@ def _item_links(item: pystac.Item, site_id: int, owner_path: str, href: Href) ->
     item.add_link(
         _link(
             "wmts",
-            href(f"{API_PREFIX}/sites/{site_id}/{owner_path}/wmts/WMTSCapabilities.xml"),
+            href(api_url("sites", site_id, owner_path, "wmts", "WMTSCapabilities.xml")),
             "application/xml",
             "Map layers (WMTS)",
         )

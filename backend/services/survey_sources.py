@@ -22,6 +22,7 @@ from celery import Celery
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from backend.db.arriving_uploads import arriving_video
 from backend.db.models import (
     Job,
     Site,
@@ -33,10 +34,9 @@ from backend.db.models import (
     Upload,
     UploadState,
 )
-from backend.services.arriving_uploads import arriving_video
-from backend.services.jobs import QueueUnavailable, new_job, start_job
 from backend.storage import LocalStorage, SavedFile
-from worker.jobs.reconstruction import ReconstructionJob
+from backend.storage_layout import survey_files_folder
+from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.flight_log import read_flight_log
 from worker.pipeline.ingest.images import read_image_metadata
@@ -172,7 +172,7 @@ def _record(
 
 
 def _folder(survey: Survey) -> str:
-    return f"surveys/{survey.site_id}/{survey.id}/files"
+    return survey_files_folder(survey.site_id, survey.id)
 
 
 def add_survey_file(
@@ -260,9 +260,7 @@ def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> J
         arriving.details = {**arriving.details, "streamed": True}
     survey.status = SurveyStatus.processing
     survey.error = None
-    job = new_job(
-        survey.site_id, ReconstructionJob.name, ReconstructionJob.stages, survey_id=survey.id
-    )
+    job = new_job(survey.site_id, JobKindName.reconstruction, survey_id=survey.id)
     session.add(job)
     session.commit()
     try:

@@ -14,8 +14,8 @@ from starlette.concurrency import run_in_threadpool
 from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
 from backend.geotiff import is_geotiff
 from backend.storage import LocalStorage, SavedFile, file_digest
-from worker.jobs.products import COG_MEDIA_TYPE
-from worker.pipeline.cog import RasterRole, write_cog
+from backend.storage_layout import site_surveys_folder
+from worker.pipeline.cog import COG_MEDIA_TYPE, RasterRole, write_cog
 from worker.pipeline.dsm_inspect import inspect_dsm
 from worker.pipeline.errors import InputError
 
@@ -36,7 +36,8 @@ async def create_dsm_survey(
     Raises UploadTooLarge or InputError; in every failure the file is removed and no
     row is left behind.
     """
-    saved: SavedFile = await storage.save_stream(chunks, f"surveys/{site.id}", ".tif", max_bytes)
+    folder = site_surveys_folder(site.id)
+    saved: SavedFile = await storage.save_stream(chunks, folder, ".tif", max_bytes)
     return await _record_dsm_survey(
         session, storage, site, saved, name=name, captured_at=captured_at,
         original_name=original_name,
@@ -55,7 +56,8 @@ async def create_dsm_survey_from_file(
 ) -> Survey:
     """As create_dsm_survey, from a complete file on disk (a finished resumable upload),
     which is moved into storage. Raises InputError; on failure the file is removed."""
-    saved = await run_in_threadpool(storage.adopt_file, source, f"surveys/{site.id}", ".tif")
+    folder = site_surveys_folder(site.id)
+    saved = await run_in_threadpool(storage.adopt_file, source, folder, ".tif")
     return await _record_dsm_survey(
         session, storage, site, saved, name=name, captured_at=captured_at,
         original_name=original_name,
@@ -78,7 +80,7 @@ async def _record_dsm_survey(
         # Never handed to GDAL: a VRT or other format could make it read any file.
         storage.delete(saved.relative_path)
         raise InputError(f"{label} is not a GeoTIFF (it is not a TIFF file)")
-    cog_path = storage.new_relative_path(f"surveys/{site.id}", ".cog.tif")
+    cog_path = storage.new_relative_path(site_surveys_folder(site.id), ".cog.tif")
     try:
         info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path), label)
         await run_in_threadpool(

@@ -34,9 +34,9 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from backend.config import Settings
+from backend.db.arriving_uploads import part_path, part_relative_path
 from backend.db.models import Site, Survey, SurveyStatus, Upload, UploadState
-from backend.security import as_utc
-from backend.services.arriving_uploads import part_path, part_relative_path
+from backend.db.tokens import as_utc
 from backend.services.survey_sources import SourceRejected, add_survey_file, check_file_name
 from backend.services.surveys import create_dsm_survey_from_file
 from backend.storage import LocalStorage, file_digest

@@ -1,6 +1,6 @@
 """User accounts of the map: create them, sign in (a session token that expires), sign out.
 
-A session is an ordinary API token (backend/security.py) tied to the user, with an expiry;
+A session is an ordinary API token (backend/db/tokens.py) tied to the user, with an expiry;
 so every route that takes a platform token takes a signed-in user's token too.
 """
 
@@ -13,8 +13,8 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend.db.models import ApiToken, User
+from backend.db.tokens import TOKEN_PREFIX, hash_token
 from backend.passwords import hash_password, password_problem, verify_password
-from backend.security import TOKEN_PREFIX, hash_token
 
 USERNAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,99}$")
 # Spent on an unknown user name too, so that the answer time does not tell which names exist.

@@ -64,6 +64,6 @@ describe("detections", () => {
     expect(html).toContain("&#60;b&#62;threshold");
     expect(html).toContain("unknown");
     const plain = detectionPopupHtml(1, { ...props, method: "threshold", model_version: null }, "UTC");
-    expect(plain).toContain("none (threshold on Δh)");
+    expect(plain).toContain("none (the method runs no model)");
   });
 });

@@ -70,7 +70,7 @@ export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone:
     ...(u.lod_m != null ? [["LoD (95 %)", formatMetres(u.lod_m)] as [string, string]] : []),
     ["Score", p.score.toFixed(2)],
     ["Method", p.method],
-    ["Model version", p.model_version ?? (p.method === "threshold" ? "none (threshold on Δh)" : "unknown")],
+    ["Model version", p.model_version ?? "none (the method runs no model)"],
   ];
   const latest = p.feedback?.latest;
   const verdict = latest

@@ -46,6 +46,7 @@ export type JobState = "queued" | "running" | "succeeded" | "failed";
 
 export interface StageRun {
   stage: string;
+  help: string; // what the stage does, in one line (declared with the stage in the library)
   state: "pending" | "running" | "succeeded" | "failed";
   progress: number;
   attempts: number;

@@ -10,6 +10,7 @@ from fastapi.testclient import TestClient
 
 from backend.services.alerts import attempt_delivery
 from backend.signing import SIGNATURE_HEADER, TIMESTAMP_HEADER, verify_signature
+from tests.api_helpers import job_context
 from tests.monitoring_helpers import MailReceiver, WebhookReceiver, finished_comparison
 from worker.jobs.runner import fail_job
 from worker.simulator.dsm_pair import DsmPairPaths
@@ -43,7 +44,9 @@ def _deliveries(client: TestClient, auth: dict, site: int) -> list[dict]:
 
 
 def _attempt(app: FastAPI, delivery_id: int):
-    return attempt_delivery(delivery_id, app.state.sessionmaker, app.state.storage)
+    return attempt_delivery(
+        delivery_id, app.state.sessionmaker, app.state.storage, app.state.settings
+    )
 
 
 def test_signed_webhook_is_retried_until_delivered_and_every_attempt_logged(
@@ -150,7 +153,7 @@ def test_emails_reach_smtp_and_job_failures_alert_once(
               "method": "threshold"},
         headers=auth,
     ).json()["job"]  # fmt: skip
-    fail_job(job["id"], "align", "the disk is full")
+    fail_job(job_context(), job["id"], "align", "the disk is full")
     failures = [d for d in _deliveries(client, auth, site) if d["event"] == "job_failed"]
     assert sorted(d["channel"] for d in failures) == ["email", "webhook"]
     email = next(d for d in failures if d["channel"] == "email")

@@ -10,7 +10,7 @@ from backend.api.app import create_app
 from backend.config import Settings, get_settings
 from backend.db import session as db_session
 from backend.db.migrate import upgrade
-from backend.security import create_token
+from backend.db.tokens import create_token
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
 

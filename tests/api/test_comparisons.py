@@ -154,7 +154,7 @@ def test_finished_comparison_serves_detections_and_products(
 @pytest.mark.parametrize(
     ("change", "status", "message"),
     [
-        ({"method": "magic"}, 422, "unknown method 'magic'"),
+        ({"method": "magic"}, 422, "unknown detection method 'magic'"),
         (
             {"method": "cnn", "parameters": {"cnn": {"model": "/etc/passwd"}}},
             422,

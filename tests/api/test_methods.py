@@ -10,18 +10,16 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from backend.db.models import Comparison, JobState
-from backend.services import comparisons as comparisons_service
-from backend.services.jobs import new_job
 from tests.api_helpers import run_job_inline, upload_dsm
-from worker.jobs.comparison import ComparisonJob
-from worker.pipeline.comparison import (
-    METHOD_SUMMARIES,
-    METHODS,
-    STAGES_BY_METHOD,
-    ComparisonOptions,
+from worker.jobs.control import JobKindName, new_job
+from worker.pipeline.comparison import ComparisonOptions, stages_for
+from worker.pipeline.detection_methods import (
     default_method,
-    stages_for,
+    detection_method,
+    detection_methods,
+    method_names,
 )
+from worker.pipeline.methods import scored as scored_method
 from worker.pipeline.scorer import load_scorer, shipped_scorer_available
 from worker.simulator.dsm_pair import DsmPairPaths
 
@@ -40,10 +38,10 @@ def test_methods_lists_the_three_with_the_library_default(client: TestClient, au
     response = client.get("/api/v1/methods", headers=auth)
     assert response.status_code == 200, response.text
     methods = response.json()
-    assert [m["name"] for m in methods] == list(METHODS) == ["threshold", "scored", "cnn"]
+    assert [m["name"] for m in methods] == list(method_names()) == ["threshold", "scored", "cnn"]
     for method in methods:
-        assert method["summary"] == METHOD_SUMMARIES[method["name"]]
-        assert method["stages"] == list(STAGES_BY_METHOD[method["name"]])
+        assert method["summary"] == detection_method(method["name"]).summary
+        assert method["stages"] == list(stages_for(method["name"]))
     assert [m["name"] for m in methods if m["default"]] == [default_method()]
     # The scored method is the default exactly when its scorer ships.
     assert default_method() == "threshold" and shipped_scorer_available()
@@ -52,8 +50,8 @@ def test_methods_lists_the_three_with_the_library_default(client: TestClient, au
 @pytest.mark.parametrize("doc", ["README.md", "docs/detection.md", "docs/frontend.md"])
 def test_the_docs_list_each_method_with_its_line(doc: str) -> None:
     text = (Path(__file__).resolve().parents[2] / doc).read_text()
-    for name in METHODS:
-        assert f"`{name}`" in text and METHOD_SUMMARIES[name] in text, (doc, name)
+    for method in detection_methods():
+        assert f"`{method.name}`" in text and method.summary in text, (doc, method.name)
     default = default_method()
     assert f"`{default}` (the default" in text or f"`{default}` (default)" in text, doc
 
@@ -116,7 +114,7 @@ def test_scored_is_refused_while_its_scorer_is_not_installed(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     # An installation without the scorer's weights file (a trimmed package).
-    monkeypatch.setattr(comparisons_service, "shipped_scorer_available", lambda: False)
+    monkeypatch.setattr(scored_method, "shipped_scorer_available", lambda: False)
     site, pre, post = site_and_surveys
     response = client.post(
         f"/api/v1/sites/{site}/comparisons",
@@ -158,7 +156,9 @@ def test_a_scored_comparison_keeps_its_detections_scorer_and_lod(
         )  # fmt: skip
         session.add(comparison)
         session.flush()
-        job = new_job(site, ComparisonJob.name, stages_for("scored"), comparison_id=comparison.id)
+        job = new_job(
+            site, JobKindName.comparison, stages_for("scored"), comparison_id=comparison.id
+        )
         session.add(job)
         session.commit()
         cid, job_id = comparison.id, job.id

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from rasterio.transform import Affine, from_origin
 
-from worker.pipeline.cnn.dataset import write_manifest
-from worker.pipeline.cnn.recon_noise import degrade
 from worker.pipeline.comparison import ComparisonOptions, ComparisonResult, compare_dsms
 from worker.pipeline.raster_io import write_geotiff
 from worker.simulator.georef import Grid
 from worker.simulator.landslide import SlideSpec, apply_slide
+from worker.training.dataset import write_manifest
+from worker.training.recon_noise import degrade
 
 PIXEL_M = 0.02
 SIZE_M = 12.0

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from worker.pipeline.cnn.augment import (
-    centre_crop,
+from worker.pipeline.cnn.normalize import dense_inputs, relative_patch_pair, vertical_level_m
+from worker.pipeline.cnn.patches import centre_crop
+from worker.training.augment import (
     fixed_crop,
     loose_crop,
     random_flips,
     registration_jitter,
 )
-from worker.pipeline.cnn.normalize import dense_inputs, relative_patch_pair, vertical_level_m
 
 
 def _patches(n=400, seed=0):

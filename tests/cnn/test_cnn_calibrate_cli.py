@@ -8,9 +8,9 @@ from click.testing import CliRunner
 
 from tests.cnn.conftest import CRS, mound_pair
 from worker.commands.calibrate import calibrate
-from worker.pipeline.cnn.dataset import write_manifest
 from worker.pipeline.cnn.options import default_model_path
 from worker.pipeline.raster_io import write_geotiff
+from worker.training.dataset import write_manifest
 
 
 def write_pair_dataset(folder: Path, slide: bool, seed: int) -> Path:

@@ -2,7 +2,7 @@
 
 import pytest
 
-from worker.pipeline.cnn.calibration import Group, area_f1, choose_min_score
+from worker.training.calibration import Group, area_f1, choose_min_score
 
 
 def test_a_separable_set_puts_min_score_above_the_false_alarms_with_a_margin():

@@ -11,17 +11,16 @@ from rio_cogeo.cogeo import cog_validate
 from tests.cnn.conftest import cnn_options
 from worker.commands.detect import detect
 from worker.pipeline.cnn.detect_stage import detect_cnn
-from worker.pipeline.cnn.evaluation import rasterize_detections
 from worker.pipeline.comparison import (
-    METHODS,
-    STAGES,
     ComparisonOptions,
     compare_dsms,
     run_stage,
     stages_for,
 )
+from worker.pipeline.detection_methods import method_names
 from worker.pipeline.errors import InputError
 from worker.pipeline.raster_io import write_geotiff
+from worker.training.evaluation import rasterize_detections
 
 CNN_FILES = {
     "pre_aligned.tif",
@@ -39,15 +38,15 @@ CNN_FILES = {
 
 
 def test_stages_per_method():
-    assert METHODS == ("threshold", "scored", "cnn")
-    assert stages_for("threshold") == STAGES == ("align", "coregister", "difference", "vectorize")
+    assert method_names() == ("threshold", "scored", "cnn")
+    assert stages_for("threshold") == ("align", "coregister", "difference", "vectorize")
     assert stages_for("cnn") == ("align", "coregister", "difference", "detect")
     with pytest.raises(InputError, match="unknown detection method"):
         stages_for("magic")
     with pytest.raises(InputError, match="unknown detection method"):
         ComparisonOptions.from_dict({"method": "magic"})
     options = ComparisonOptions.from_dict({"method": "cnn", "cnn": {"tile_px": 512}})
-    assert options.cnn.tile_px == 512
+    assert options.detection.tile_px == 512
     assert ComparisonOptions.from_dict(options.to_dict()) == options
 
 
@@ -68,6 +67,7 @@ def test_layout_and_results(cnn_slide_run):
     for cell in cells["features"]:
         assert cell["properties"]["fraction"] > 0.10
     feature = json.loads((work / "detections.geojson").read_text())["features"][0]
+    # The one detection record of every method (detection_record.py); no intervals here.
     assert set(feature["properties"]) == {
         "area_m2",
         "volume_loss_m3",
@@ -75,16 +75,18 @@ def test_layout_and_results(cnn_slide_run):
         "max_abs_dh_m",
         "score",
         "method",
-        "model",
+        "model_version",
+        "uncertainty",
     }
+    assert feature["properties"]["uncertainty"] is None
     assert 0 < feature["properties"]["score"] <= 1
 
 
 def test_stages_of_another_method_are_refused(cnn_slide_run, tmp_path):
     pre, post = cnn_slide_run.paths
-    with pytest.raises(InputError, match="not a stage of the cnn method"):
+    with pytest.raises(InputError, match=r"not a stage of the comparison \(cnn\)"):
         run_stage("vectorize", pre, post, tmp_path, {"method": "cnn"})
-    with pytest.raises(InputError, match="not a stage of the threshold method"):
+    with pytest.raises(InputError, match=r"not a stage of the comparison \(threshold\)"):
         run_stage("detect", pre, post, tmp_path, {"method": "threshold"})
 
 
@@ -187,4 +189,4 @@ def test_detect_command_with_the_cnn(cnn_slide_run, tmp_path):
     assert (tmp_path / "work" / "probability.tif").exists()
     args = ["--pre", "a.tif", "--post", "b.tif", "--out", str(out), "--method", "threshold"]
     refused = CliRunner().invoke(detect, [*args, "--model", "x.json"])
-    assert refused.exit_code == 2 and "--model needs --method cnn" in refused.stderr
+    assert refused.exit_code == 2 and "the threshold method runs no model" in refused.stderr

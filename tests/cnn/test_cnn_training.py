@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from tests.cnn.conftest import write_separable_dataset
-from worker.pipeline.cnn.dataset import load_manifest
-from worker.pipeline.cnn.dense_training import DenseTrainingOptions, train_slidenet
-from worker.pipeline.cnn.paper_training import PatchTrainingOptions, patch_dataset, train_patchnet
 from worker.pipeline.cnn.registry import load_model
-from worker.pipeline.cnn.training import Exclusion, load_training_pairs
+from worker.training.dataset import load_manifest
+from worker.training.dense_training import DenseTrainingOptions, train_slidenet
+from worker.training.paper_training import PatchTrainingOptions, patch_dataset, train_patchnet
+from worker.training.training import Exclusion, load_training_pairs
 
 SMALL = {"filters": (8, 16, 16, 16, 8), "fc": (32, 32)}  # the paper's layout, fewer filters
 

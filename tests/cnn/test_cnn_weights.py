@@ -5,7 +5,6 @@ import json
 import numpy as np
 import rasterio
 
-from worker.pipeline.cnn.evaluation import rasterize_detections
 from worker.pipeline.cnn.models import SlideNet
 from worker.pipeline.cnn.registry import (
     PACKAGE_WEIGHTS,
@@ -14,6 +13,7 @@ from worker.pipeline.cnn.registry import (
     load_default_model,
 )
 from worker.pipeline.comparison import default_method
+from worker.training.evaluation import rasterize_detections
 
 
 def test_shipped_weights_load_with_their_card():
@@ -40,7 +40,7 @@ def test_finds_the_planted_slide(cnn_slide_run):
     collection = json.loads(cnn_slide_run.result.detections_path.read_text())
     assert len(collection["features"]) == 1
     props = collection["features"][0]["properties"]
-    assert props["method"] == "cnn" and props["model"].startswith("slidenet-default@")
+    assert props["method"] == "cnn" and props["model_version"].startswith("slidenet-default@")
     with rasterio.open(cnn_slide_run.result.work_dir / "pre_aligned.tif") as src:
         found = rasterize_detections(
             cnn_slide_run.result.detections_path, src.shape, src.transform, src.crs

@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 from rasterio.transform import from_origin
 
-from worker.pipeline.cnn.dataset import load_manifest, load_pair
 from worker.pipeline.cnn.patches import extract_patches
-from worker.pipeline.cnn.reconstructed_data import (
+from worker.pipeline.raster_io import read_elevation, write_geotiff
+from worker.training.dataset import load_manifest, load_pair
+from worker.training.reconstructed_data import (
     REGISTRATION,
     RegistrationToTruth,
     reconstructed_dataset,
     register_to_truth,
     survey_simulation,
 )
-from worker.pipeline.raster_io import read_elevation, write_geotiff
 
 CRS = "EPSG:32654"
 

@@ -16,25 +16,31 @@ from worker.detection_bench.runner import (
     format_tables,
     run_generator_benchmark,
 )
-from worker.pipeline import comparison
+from worker.pipeline import detection_methods
+from worker.pipeline.comparison_layout import DETECTIONS_OUTPUT, DetectionMethod
+from worker.pipeline.stages import StageSpec
+from worker.pipeline.vectorize import VectorizeOptions
 
 TWIN_FALSE_ALARM_BOUND = 500.0  # m2/km2: 1.3 m2 on this 0.0026 km2 pair, < one polygon
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    """threshold and a method that always raises, on one tiny pair and its twin."""
-    real_compare = comparison.compare_dsms
+    """threshold and a registered method that always raises, on one tiny pair and its twin."""
 
-    def compare(pre, post, work_dir, options=None, progress=None):
-        if options.method == "broken":
-            raise RuntimeError("broken on purpose")
-        return real_compare(pre, post, work_dir, options)
+    def fail(_context, _progress):
+        raise RuntimeError("broken on purpose")
 
+    broken = DetectionMethod(
+        name="broken",
+        summary="Always fails.",
+        stage=StageSpec("break", fail, "fails", outputs=(DETECTIONS_OUTPUT,)),
+        options_type=VectorizeOptions,
+        options_key="broken",
+    )
     work = tmp_path_factory.mktemp("bench")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(comparison, "METHODS", (*comparison.METHODS, "broken"))
-        patch.setattr(comparison, "compare_dsms", compare)
+    detection_methods.register_method(broken)
+    try:
         lines: list[str] = []
         result = run_generator_benchmark(
             work,
@@ -44,6 +50,8 @@ def report(tmp_path_factory):
             log=lines.append,
             held_out=["tiny"],
         )
+    finally:
+        detection_methods.unregister_method("broken")
     result["log"] = lines
     result["work"] = work
     return result

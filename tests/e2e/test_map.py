@@ -9,7 +9,7 @@ from playwright.sync_api import Page, Request, Route, expect
 
 from tests.e2e.conftest import USER, App, shot
 from tests.video_helpers import moov_before_mdat
-from worker.pipeline.comparison import METHODS, default_method
+from worker.pipeline.detection_methods import default_method, method_names
 from worker.simulator.dsm_pair import DsmPairPaths
 
 JOB_TIMEOUT_MS = 180_000
@@ -67,7 +67,7 @@ def test_sign_in_upload_compare_and_read_the_map(
     expect(method).to_have_value(default["name"])
     expect(page.locator("#method-summary")).to_have_text(default["summary"])
     assert method.locator("option").all_inner_texts() == [
-        f"{name} (default)" if name == default["name"] else name for name in METHODS
+        f"{name} (default)" if name == default["name"] else name for name in method_names()
     ]
     page.get_by_role("button", name="Compare").click()
     job = page.locator(".job").first

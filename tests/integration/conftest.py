@@ -1,5 +1,6 @@
 """Real worker processes against real brokers and databases."""
 
+import json
 import os
 import signal
 import subprocess
@@ -14,7 +15,7 @@ from fastapi.testclient import TestClient
 from backend.api.app import create_app
 from backend.config import Settings
 from backend.db.migrate import upgrade
-from backend.security import create_token
+from backend.db.tokens import create_token
 
 # Short liveness timings, so that a killed worker's stage is taken over within seconds.
 FAST_RECOVERY = {
@@ -35,6 +36,7 @@ class SlidewatchProcess:
             "SLIDEWATCH_DATA_DIR": str(settings.data_dir),
             "SLIDEWATCH_DATABASE_URL": settings.resolved_database_url,
             "SLIDEWATCH_BROKER_URL": settings.resolved_broker_url,
+            "SLIDEWATCH_DETECTION_METHOD_MODULES": json.dumps(settings.detection_method_modules),
         }
         self.log_path = log_path
         self.args = args
@@ -115,6 +117,24 @@ def api_client(settings: Settings) -> tuple[TestClient, dict[str, str]]:
         token = create_token(session, "integration tests")
         session.commit()
     return TestClient(app), {"Authorization": f"Bearer {token}"}
+
+
+def upload_dsm_pair(
+    client: TestClient, auth: dict, pre: Path, post: Path, site_name: str = "integration"
+) -> tuple[int, list[int]]:
+    """A new site with the two DSMs as its June and July surveys: (site id, survey ids)."""
+    site = client.post("/api/v1/sites", json={"name": site_name}, headers=auth).json()["id"]
+    ids = []
+    for path, when in ((pre, "2026-06-01T10:00:00Z"), (post, "2026-07-01T10:00:00Z")):
+        response = client.post(
+            f"/api/v1/sites/{site}/surveys",
+            params={"captured_at": when},
+            content=path.read_bytes(),
+            headers={**auth, "Content-Type": "image/tiff"},
+        )
+        assert response.status_code == 201, response.text
+        ids.append(response.json()["id"])
+    return site, ids
 
 
 def wait_for_job(

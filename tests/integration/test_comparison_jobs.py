@@ -10,7 +10,12 @@ from pathlib import Path
 import pytest
 
 from backend.config import Settings
-from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
+from tests.integration.conftest import (
+    SlidewatchProcess,
+    api_client,
+    upload_dsm_pair,
+    wait_for_job,
+)
 from worker.simulator.dsm_pair import DsmPair, DsmPairPaths, make_dsm_pair, write_dsm_pair
 
 pytestmark = pytest.mark.integration
@@ -26,17 +31,7 @@ def pair(tmp_path_factory: pytest.TempPathFactory) -> tuple[DsmPair, DsmPairPath
 
 
 def submit_comparison(client, auth, paths: DsmPairPaths) -> tuple[int, int]:
-    site = client.post("/api/v1/sites", json={"name": "integration"}, headers=auth).json()["id"]
-    ids = []
-    for path, when in ((paths.pre, "2026-06-01T10:00:00Z"), (paths.post, "2026-07-01T10:00:00Z")):
-        response = client.post(
-            f"/api/v1/sites/{site}/surveys",
-            params={"captured_at": when},
-            content=path.read_bytes(),
-            headers={**auth, "Content-Type": "image/tiff"},
-        )
-        assert response.status_code == 201, response.text
-        ids.append(response.json()["id"])
+    site, ids = upload_dsm_pair(client, auth, paths.pre, paths.post)
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
         json={"pre_survey_id": ids[0], "post_survey_id": ids[1], "method": "threshold"},

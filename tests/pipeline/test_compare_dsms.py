@@ -10,14 +10,16 @@ import rasterio
 
 from worker.pipeline import raster_io
 from worker.pipeline.comparison import (
-    STAGES,
     ComparisonOptions,
     compare_dsms,
     run_stage,
+    stages_for,
     summarize,
 )
 from worker.pipeline.errors import InputError, PipelineError
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
+
+STAGES = stages_for("threshold")
 
 LAYOUT = {
     "align": ["pre_aligned.tif", "post_aligned.tif"],
@@ -84,7 +86,7 @@ def test_each_stage_is_idempotent(slide_run, tmp_path):
 def test_run_stage_needs_the_earlier_stages(slide_run, tmp_path):
     with pytest.raises(PipelineError, match="run the earlier stages first"):
         run_stage("difference", slide_run.paths.pre, slide_run.paths.post, tmp_path, None)
-    with pytest.raises(ValueError, match="unknown stage"):
+    with pytest.raises(InputError, match="'warp' is not a stage of the comparison"):
         run_stage("warp", slide_run.paths.pre, slide_run.paths.post, tmp_path, None)
 
 
@@ -140,13 +142,13 @@ def test_failing_align_writes_nothing(tmp_path):
 
 def test_options_round_trip_through_json():
     options = ComparisonOptions()
-    options.vectorize.min_area_m2 = 40.0
+    options.detection.min_area_m2 = 40.0
     options.difference.lod_m = 0.3
     options.coregister.tilt = False
     data = json.loads(json.dumps(options.to_dict()))
     assert ComparisonOptions.from_dict(data) == options
     partial = ComparisonOptions.from_dict({"vectorize": {"min_area_m2": 10.0}})
-    assert partial.vectorize.min_area_m2 == 10.0 and partial.coregister.tilt is True
+    assert partial.detection.min_area_m2 == 10.0 and partial.coregister.tilt is True
     assert ComparisonOptions.from_dict(None) == ComparisonOptions()
     with pytest.raises(InputError, match="unknown vectorize options: min_aera_m2"):
         ComparisonOptions.from_dict({"vectorize": {"min_aera_m2": 10.0}})

@@ -36,18 +36,24 @@ def test_geojson_is_rfc7946(slide_run):
     assert collection["metric_crs"] == "EPSG:32632"
     feature = collection["features"][0]
     assert feature["id"] == 1 and feature["type"] == "Feature"
+    # The one detection record of every method (detection_record.py).
     assert set(feature["properties"]) == {
         "area_m2",
-        "area_m2_ci95",
         "volume_loss_m3",
-        "volume_loss_m3_ci95",
         "volume_gain_m3",
-        "volume_gain_m3_ci95",
         "max_abs_dh_m",
-        "lod_m",
         "score",
         "method",
+        "model_version",
+        "uncertainty",
     }
+    assert set(feature["properties"]["uncertainty"]) == {
+        "area_m2_ci95",
+        "volume_loss_m3_ci95",
+        "volume_gain_m3_ci95",
+        "lod_m",
+    }
+    assert feature["properties"]["model_version"] is None
     geometry = shape(feature["geometry"])
     polygons = getattr(geometry, "geoms", [geometry])
     for polygon in polygons:

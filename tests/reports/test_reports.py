@@ -1,5 +1,6 @@
 """Reports on demand: PDF with embedded fonts and the right numbers, HTML, the change
-since the previous report, delivery by e-mail (PDF attached) and webhook."""
+since the previous report, delivery by e-mail (PDF attached) and webhook. A report is
+built by a job, run here in this process exactly as a worker runs it."""
 
 import io
 
@@ -8,8 +9,8 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from pypdf import PdfReader
 
-from backend.services import reports
 from backend.services.alerts import attempt_delivery
+from tests.api_helpers import run_job_inline
 from tests.monitoring_helpers import MailReceiver, WebhookReceiver, finished_comparison
 from worker.simulator.dsm_pair import DsmPairPaths
 
@@ -17,8 +18,8 @@ from worker.simulator.dsm_pair import DsmPairPaths
 def _build(app: FastAPI, client: TestClient, auth: dict, site: int, **body) -> dict:
     created = client.post(f"/api/v1/sites/{site}/reports", json=body, headers=auth)
     assert created.status_code == 202, created.text
-    assert created.json()["status"] == "queued"
-    assert reports.build(created.json()["id"], app.state.sessionmaker, app.state.storage)
+    assert created.json()["status"] == "queued" and created.json()["job_id"] is not None
+    run_job_inline(created.json()["job_id"], "build")
     return client.get(f"/api/v1/sites/{site}/reports/{created.json()['id']}", headers=auth).json()
 
 
@@ -91,7 +92,10 @@ def test_report_is_delivered_by_email_with_the_pdf_and_by_webhook(
         assert sorted(d["channel"] for d in deliveries) == ["email", "webhook"]
         for delivery in deliveries:
             outcome = attempt_delivery(
-                delivery["id"], report_app.state.sessionmaker, report_app.state.storage
+                delivery["id"],
+                report_app.state.sessionmaker,
+                report_app.state.storage,
+                report_app.state.settings,
             )
             assert outcome.delivered, outcome.error
     assert receiver.requests[0][1].startswith(b'{"event":"report_ready"')

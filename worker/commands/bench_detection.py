@@ -15,7 +15,7 @@ errors, seconds and failures (worker/detection_bench/). Pairs and runs live in
 simulates its data (survey videos reconstructed by slidewatch), trains the paper's two
 models (cached in --work-dir, resumable), evaluates every detector on patterns A-D on
 paper-mounds and the hillslope, checks no-change pairs for false alarms and measures
-inference speed (worker/pipeline/cnn/benchmark.py).
+inference speed (worker/training/benchmark.py).
 
 Each prints its tables and writes everything to --json. Options of one suite are
 refused with the other, rather than silently ignored.
@@ -239,18 +239,19 @@ def generators_suite(
 ) -> None:
     from worker.detection_bench import runner
     from worker.pipeline.atomic import write_text_atomic
-    from worker.pipeline.comparison import METHODS, ComparisonOptions
+    from worker.pipeline.comparison import ComparisonOptions
+    from worker.pipeline.detection_methods import method_names
 
     try:
         generators = runner.resolve_generators(generator_names)
-        chosen = runner.validate_methods(methods or (*METHODS, *runner.VARIANTS))
+        chosen = runner.validate_methods(methods or (*method_names(), *runner.VARIANTS))
         names = [g.name for g in generators]
         held = runner.validate_held_out(held_out, names) if held_out else None
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from None
     cnn = ComparisonOptions(method="cnn")
-    cnn.cnn.model = model
-    cnn.cnn.num_threads = threads
+    cnn.detection.model = model
+    cnn.detection.num_threads = threads
     report = runner.run_generator_benchmark(
         work_dir,
         generators,
@@ -307,7 +308,7 @@ def paper_suite(
     speed_threads: int,
     speed_size: int,
 ) -> None:
-    from worker.pipeline.cnn.benchmark import run_benchmark
+    from worker.training.benchmark import run_benchmark
 
     report = run_benchmark(
         work_dir,

@@ -8,7 +8,7 @@
         --work-dir data/calibration [--publish slidenet-default]
 
 Runs the cnn comparison with min_score 0 on every pair (the first pair of a dataset, or
-the one after `#`) and chooses min_score (worker/pipeline/cnn/calibration.py). Prints the
+the one after `#`) and chooses min_score (worker/training/calibration.py). Prints the
 calibration as JSON; `--publish NAME` copies the model with that min_score into the
 package's weights folder as NAME (the shipped default is `slidenet-default`).
 """
@@ -26,7 +26,7 @@ EXIT_INPUT_ERROR = 2
 
 
 def _pairs(specs: tuple[str, ...]) -> dict:
-    from worker.pipeline.cnn.dataset import load_manifest, load_pair
+    from worker.training.dataset import load_manifest, load_pair
 
     pairs = {}
     for spec in specs:
@@ -53,9 +53,9 @@ def calibrate(
     publish: str | None,
 ) -> None:
     """Calibrate a model's min_score on no-change pairs and pairs with slides."""
-    from worker.pipeline.cnn.calibration import calibrate_min_score
     from worker.pipeline.cnn.options import PACKAGE_WEIGHTS
     from worker.pipeline.cnn.registry import publish_model
+    from worker.training.calibration import calibrate_min_score
 
     try:
         result = calibrate_min_score(card, _pairs(no_change), _pairs(slides), work_dir, threads)

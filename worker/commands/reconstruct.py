@@ -3,9 +3,10 @@
     slidewatch reconstruct --video V.mp4 --log L.srt --out DIR [--method slam|sfm]
     slidewatch reconstruct --images DIR --out DIR
 
-Writes DIR/dsm.tif, DIR/points.ply, DIR/trajectory.csv and DIR/report.json (and every
-stage's working files, see worker/pipeline/reconstruction.py); prints a one-line JSON
-summary. Unusable input exits with status 2 and a message that says what is wrong.
+Writes DIR/dsm.tif, DIR/points.ply, DIR/trajectory.csv, DIR/trajectory.geojson and
+DIR/report.json (and every stage's working files, see worker/pipeline/reconstruction.py);
+prints a one-line JSON summary. Unusable input exits with status 2 and a message that
+says what is wrong.
 """
 
 from __future__ import annotations
@@ -23,8 +24,7 @@ from worker.pipeline.reconstruction import (
     STAGES,
     ReconstructionInputs,
     ReconstructionOptions,
-    ReconstructionResult,
-    run_stage,
+    reconstruct_survey,
 )
 
 EXIT_INPUT_ERROR = 2
@@ -102,13 +102,9 @@ def reconstruct(
         log=str(log_path) if log_path else None,
         images=str(images) if images else None,
     )
-    results = {}
     try:
-        for stage in STAGES[STAGES.index(from_stage) :]:
-            results[stage] = run_stage(stage, out_dir, options, inputs)
+        result = reconstruct_survey(inputs, out_dir, options, from_stage=from_stage)
     except InputError as exc:
         click.echo(f"error: {exc}", err=True)
         raise SystemExit(EXIT_INPUT_ERROR) from exc
-    seconds = sum(r.get("seconds") or 0.0 for r in results.values())
-    summary = ReconstructionResult(out_dir, results, seconds).summary()
-    click.echo(json.dumps(summary))
+    click.echo(json.dumps(result.summary()))

@@ -6,11 +6,11 @@
     slidewatch train --simulate training-set --data-dir data/cnn-train --out models/ \\
         --threads 1       # the shipped SlideNet's data and options
 
-`--dataset` takes any detection dataset manifest (worker/pipeline/cnn/dataset.py).
+`--dataset` takes any detection dataset manifest (worker/training/dataset.py).
 `--simulate` makes one: the scenario's survey videos rendered and reconstructed by
-slidewatch, as the paper trained on its own DSO DSMs (cnn/reconstructed_data.py), or with
-`--dsm-source recon-noise` the quick interim stand-in (truth DSMs degraded by
-cnn/recon_noise.py, no rendering).
+slidewatch, as the paper trained on its own DSO DSMs
+(worker/training/reconstructed_data.py), or with `--dsm-source recon-noise` the quick
+interim stand-in (truth DSMs degraded by worker/training/recon_noise.py, no rendering).
 The test pair/region of the manifest is held out unless `--include-test`. Seeded and
 resumable: run the same command again after an interruption and it continues from the
 last finished epoch. Prints one JSON line: the model card's path, the model version,
@@ -25,8 +25,8 @@ from pathlib import Path
 import click
 
 from worker.commands.options import dsm_source_option
-from worker.pipeline.cnn.trainer import MODEL_KINDS
 from worker.pipeline.errors import InputError
+from worker.training.trainer import MODEL_KINDS
 
 EXIT_INPUT_ERROR = 2
 
@@ -77,19 +77,19 @@ def train(
     include_test: bool,
 ) -> None:
     """Train a detection model; print the model card path and metrics as JSON."""
-    from worker.pipeline.cnn.trainer import train_model
+    from worker.training.trainer import train_model
 
     def log(message: str) -> None:
         click.echo(message, err=True)
 
     try:
         if simulate:
-            from worker.pipeline.cnn.reconstructed_data import (
+            from worker.training.reconstructed_data import (
                 default_training_set,
                 reconstructed_dataset,
                 survey_simulation,
             )
-            from worker.pipeline.cnn.simdata import simulate_dataset
+            from worker.training.simdata import simulate_dataset
 
             folder = data_dir or out_dir / f"data-{simulate}-seed{seed}"
             if simulate == "training-set":

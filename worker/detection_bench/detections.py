@@ -60,7 +60,7 @@ def detection_mask(
     """The detections burnt into a bool mask on the grid (`crs`: a metric CRS)."""
     # The paper benchmark's rasteriser already does this (WGS84 -> grid CRS, pixel
     # centres); imported here because its module loads torch, which metrics do not need.
-    from worker.pipeline.cnn.evaluation import rasterize_detections
+    from worker.training.evaluation import rasterize_detections
 
     return rasterize_detections(Path(detections_geojson_path), tuple(shape), transform, crs)
 

@@ -75,7 +75,7 @@ def add_leave_one_out(
         scorer_path = Path(work_dir) / "leave-one-out" / f"{generator.name}.json"
         save_scorer(scorer, scorer_path)
         options = comparison.ComparisonOptions(method="scored")
-        options.score.scorer = str(scorer_path)
+        options.detection.scorer = str(scorer_path)
         for seed in report["seeds"]:
             for kind in KINDS:
                 pair = generator.make(seed, no_change=kind == "twin")

@@ -30,6 +30,7 @@ from worker.detection_bench.metrics import lod_m, score_pair
 from worker.detection_bench.tables import format_tables
 from worker.pairgen.pair import PAIR_CRS, TRUTH_JSON, DsmPair
 from worker.pipeline import comparison
+from worker.pipeline.detection_methods import method_names
 
 KINDS = ("pair", "twin")
 
@@ -80,7 +81,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 def validate_methods(methods: Sequence[str]) -> list[str]:
     """Methods checked against the comparison's list as it is now (methods get added),
     plus the benchmark's variants (VARIANTS)."""
-    known = (*comparison.METHODS, *VARIANTS)
+    known = (*method_names(), *VARIANTS)
     unknown = [m for m in methods if m not in known]
     if unknown or not methods:
         raise ValueError(

@@ -1,65 +1,52 @@
-"""The comparison job: align, co-register, difference, then score (scored method), vectorize
-(threshold method) or detect (cnn method) two survey DSMs."""
+"""The comparison job: the comparison pipeline of its method (worker/pipeline/comparison.py),
+one Celery task per stage over the comparison's folder in storage.
+
+Everything stage-specific comes from the pipeline's stage specs: the stages of a job (its
+method's), the products a stage's files become, how raster products are made into COGs,
+and which stage's detections.geojson becomes the comparison's Detection rows.
+"""
 
 import json
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from shapely.geometry import shape
 from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
+from backend.db import model_registry
+from backend.db.detections import detection_feature, detection_row
 from backend.db.models import Comparison, Detection, Job, JobState
-from backend.services import alerts, models
+from backend.storage_layout import comparison_cog_file, comparison_file, comparison_folder
+from worker.jobs.events import JobEvent, publish
+from worker.jobs.kind import JobKindName
 from worker.jobs.products import COG_MEDIA_TYPE, StorageJob, register_product
 from worker.pipeline import comparison as pipeline
-from worker.pipeline.cog import RasterRole, write_cog
-from worker.pipeline.difference import LOD_FILE
+from worker.pipeline.atomic import write_text_atomic
+from worker.pipeline.cog import write_cog
+from worker.pipeline.comparison_layout import DETECTIONS_OUTPUT
+from worker.pipeline.detection_methods import default_method, detection_method, detection_methods
+from worker.pipeline.detection_record import read_detections
 from worker.pipeline.progress import ProgressFn
-
-_DETECTIONS = {"detections": (pipeline.DETECTIONS, "application/geo+json")}
-# Files of a stage that become downloadable products, by product kind. Rasters are served as
-# Cloud-Optimized GeoTIFFs made from the stage's file (role: how overviews are resampled).
-STAGE_PRODUCTS: dict[str, dict[str, tuple[str, str]]] = {
-    "coregister": {"post_coregistered": ("post_coregistered.tif", "image/tiff")},
-    "difference": {
-        "dh": ("dh.tif", "image/tiff"),
-        "significance": ("significance.tif", "image/tiff"),
-        "lod": (LOD_FILE, "image/tiff"),
-    },
-    "vectorize": _DETECTIONS,
-    "score": _DETECTIONS,
-    "detect": {
-        "probability": ("probability.tif", "image/tiff"),
-        "cells": ("cells.geojson", "application/geo+json"),
-        **_DETECTIONS,
-    },
-}
-RASTER_ROLES: dict[str, RasterRole] = {
-    "post_coregistered": RasterRole.elevation,
-    "dh": RasterRole.elevation,
-    "significance": RasterRole.mask,
-    # Continuous fields in metres or 0-1: overviews average them, as elevations.
-    "lod": RasterRole.elevation,
-    "probability": RasterRole.elevation,
-}
-# Stages whose detections.geojson becomes the comparison's Detection rows.
-DETECTION_STAGES = ("vectorize", "score", "detect")
-# Properties of a detection feature kept together in Detection.uncertainty (threshold and
-# scored methods; the cnn method's features have none of them).
-UNCERTAINTY_KEYS = ("area_m2_ci95", "volume_loss_m3_ci95", "volume_gain_m3_ci95", "lod_m")
+from worker.pipeline.stages import Output
 
 
-def comparison_folder(comparison_id: int) -> str:
-    """Storage folder (relative) that holds a comparison's work files and products."""
-    return f"comparisons/{comparison_id}"
+def stage_products(method: str, stage: str) -> tuple[Output, ...]:
+    """The files of a stage of `method` that become the comparison's products."""
+    return pipeline.comparison_pipeline(method).stage(stage).products()
 
 
 class ComparisonJob(StorageJob):
-    name = "comparison"
-    # The threshold method's stages; a job records its own, by method (stages_for).
-    stages: tuple[str, ...] = tuple(pipeline.STAGES)
+    name = JobKindName.comparison
+    # The default method's stages; a job records its own, by method (stages_for).
+    stages: tuple[str, ...] = pipeline.stages_for(default_method())
+
+    def stage_help(self, stage: str) -> str:
+        """One line on what a stage does, from whichever method declares it."""
+        for spec in (*pipeline.COMMON_STAGES, *(m.stage for m in detection_methods())):
+            if spec.name == stage:
+                return spec.help
+        return ""
 
     def _comparison(self, session: Session, job: Job) -> Comparison:
         return self.owner(session, Comparison, job.comparison_id, job.id)
@@ -73,14 +60,16 @@ class ComparisonJob(StorageJob):
                 raise LookupError(f"survey {survey.id} has no DSM product")
             dsm_paths.append(str(self.storage.absolute(dsm.file.path)))
         options = dict(comparison.parameters)
-        if comparison.method == "cnn":
+        method = detection_method(comparison.method)
+        if method.needs_model:
             # The parameters name a registered model ("name@version"); the library takes
             # the path of its card.
-            cnn = dict(options.get("cnn") or {})
-            row = models.find_model(session, cnn.get("model") or "") if cnn.get("model") else None
-            row = row or models.default_model(session)
-            cnn["model"] = str(models.card_path(row, self.storage)) if row else None
-            options["cnn"] = cnn
+            chosen = dict(options.get(method.options_key) or {})
+            reference = chosen.get("model")
+            row = model_registry.find_model(session, reference) if reference else None
+            row = row or model_registry.default_model(session)
+            chosen["model"] = str(model_registry.card_path(row, self.storage)) if row else None
+            options[method.options_key] = chosen
         return {
             "pre_path": dsm_paths[0],
             "post_path": dsm_paths[1],
@@ -103,14 +92,14 @@ class ComparisonJob(StorageJob):
         self, session: Session, job: Job, stage: str, result: dict[str, Any]
     ) -> None:
         comparison = self._comparison(session, job)
-        folder = comparison_folder(comparison.id)
-        for kind, (file_name, media_type) in STAGE_PRODUCTS.get(stage, {}).items():
-            relative = f"{folder}/{file_name}"
-            if kind in RASTER_ROLES:
+        for output in stage_products(comparison.method, stage):
+            relative = comparison_file(comparison.id, output.file)
+            media_type = output.media_type
+            if output.raster_role is not None:
                 # Same input, same COG: a stage stored again rewrites an identical file.
-                cog = f"{folder}/cog/{file_name}"
+                cog = comparison_cog_file(comparison.id, output.file)
                 write_cog(
-                    self.storage.absolute(relative), self.storage.absolute(cog), RASTER_ROLES[kind]
+                    self.storage.absolute(relative), self.storage.absolute(cog), output.raster_role
                 )
                 relative, media_type = cog, COG_MEDIA_TYPE
             register_product(
@@ -118,37 +107,25 @@ class ComparisonJob(StorageJob):
                 self.storage,
                 site_id=comparison.site_id,
                 comparison_id=comparison.id,
-                kind=kind,
+                kind=output.product or output.file,
                 relative=relative,
                 media_type=media_type,
             )
-        if stage in DETECTION_STAGES:
-            self._store_detections(session, comparison, f"{folder}/{pipeline.DETECTIONS}")
+            if output == DETECTIONS_OUTPUT:
+                self._store_detections(session, comparison, relative)
 
     def _store_detections(self, session: Session, comparison: Comparison, relative: str) -> None:
-        collection = json.loads(self.storage.absolute(relative).read_text())
+        """The detections become rows; the product file is written again from the rows, so
+        it has their ids and the API's fields."""
+        path = self.storage.absolute(relative)
+        detections = read_detections(path)
         session.execute(delete(Detection).where(Detection.comparison_id == comparison.id))
-        for feature in collection["features"]:
-            props = feature["properties"]
-            min_lon, min_lat, max_lon, max_lat = geometry_bbox(feature["geometry"])
-            session.add(
-                Detection(
-                    comparison_id=comparison.id,
-                    geometry=feature["geometry"],
-                    min_lon=min_lon,
-                    min_lat=min_lat,
-                    max_lon=max_lon,
-                    max_lat=max_lat,
-                    area_m2=props["area_m2"],
-                    volume_loss_m3=props["volume_loss_m3"],
-                    volume_gain_m3=props["volume_gain_m3"],
-                    max_abs_dh_m=props["max_abs_dh_m"],
-                    score=props["score"],
-                    method=props.get("method", comparison.method),
-                    model_version=props.get("model"),
-                    uncertainty=uncertainty_of(props),
-                )
-            )
+        rows = [detection_row(comparison.id, g, p) for g, p in detections]
+        session.add_all(rows)
+        session.flush()
+        collection = json.loads(path.read_text(encoding="utf-8"))
+        collection["features"] = [detection_feature(row) for row in rows]
+        write_text_atomic(path, json.dumps(collection, separators=(",", ":")))
 
     def on_success(self, session: Session, job: Job) -> None:
         comparison = self._comparison(session, job)
@@ -165,7 +142,7 @@ class ComparisonJob(StorageJob):
             "stages": results,
         }
         session.flush()
-        alerts.guarded(alerts.comparison_succeeded, session, comparison)
+        publish(JobEvent.comparison_succeeded, self.context.settings, session, comparison)
 
     def on_retry(self, session: Session, job: Job) -> None:
         comparison = self._comparison(session, job)
@@ -177,14 +154,3 @@ class ComparisonJob(StorageJob):
             comparison.status = JobState.failed
             comparison.error = reason
             comparison.finished_at = datetime.now(UTC)
-
-
-def uncertainty_of(props: dict[str, Any]) -> dict[str, Any] | None:
-    """The feature's intervals and LoD, None when it has none of them (cnn)."""
-    kept = {key: props[key] for key in UNCERTAINTY_KEYS if props.get(key) is not None}
-    return kept or None
-
-
-def geometry_bbox(geometry: dict[str, Any]) -> tuple[float, float, float, float]:
-    min_x, min_y, max_x, max_y = shape(geometry).bounds
-    return min_x, min_y, max_x, max_y

@@ -1,5 +1,6 @@
 """What a kind of job provides to the stage runner."""
 
+from enum import StrEnum
 from typing import Any, Protocol
 
 from sqlalchemy.orm import Session
@@ -8,9 +9,19 @@ from backend.db.models import Job
 from worker.pipeline.progress import ProgressFn
 
 
+class JobKindName(StrEnum):
+    comparison = "comparison"
+    reconstruction = "reconstruction"
+    report = "report"
+    training = "training"
+
+
 class JobKind(Protocol):
     name: str
     stages: tuple[str, ...]
+
+    def stage_help(self, stage: str) -> str:
+        """One line for people on what the stage does (the page shows it by the stage)."""
 
     def load_inputs(self, session: Session, job: Job) -> dict[str, Any]:
         """Everything the stages need, as plain JSON-friendly data read from the database."""

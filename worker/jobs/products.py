@@ -7,24 +7,32 @@ import rasterio
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from backend.config import get_settings
-from backend.db.models import Product, StoredFile
-from backend.storage import LocalStorage, file_digest
+from backend.db.models import Product
+from backend.db.stored_files import record_stored_file
+from backend.storage import LocalStorage
+from worker.jobs.context import JobContext
+from worker.pipeline.cog import COG_MEDIA_TYPE
 
 T = TypeVar("T")
-
-COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
+__all__ = ["COG_MEDIA_TYPE", "StorageJob", "raster_crs", "register_product"]
 
 
 class StorageJob:
     """Base of the job kinds whose stages work in the platform's file storage."""
 
-    def __init__(self, storage: LocalStorage | None = None) -> None:
-        self._storage = storage
+    def __init__(self, context: JobContext | None = None) -> None:
+        # None: a kind asked only what it declares (stages, help) or to reset its owner row.
+        self._context = context
+
+    @property
+    def context(self) -> JobContext:
+        if self._context is None:
+            raise RuntimeError(f"the {type(self).__name__} runs stages only with a JobContext")
+        return self._context
 
     @property
     def storage(self) -> LocalStorage:
-        return self._storage or LocalStorage(get_settings().storage_dir)
+        return self.context.storage
 
     def owner(self, session: Session, model: type[T], owner_id: int | None, job_id: int) -> T:
         """The row the job works for (its comparison, its survey)."""
@@ -52,14 +60,7 @@ def register_product(
 ) -> Product:
     """Create or update the product `kind` of its owner; idempotent (a rerun stores again)."""
     path = storage.absolute(relative)
-    size, sha256 = file_digest(path)
-    stored = session.scalar(select(StoredFile).where(StoredFile.path == relative))
-    if stored is None:
-        stored = StoredFile(path=relative, size_bytes=size, sha256=sha256, media_type=media_type)
-        session.add(stored)
-        session.flush()
-    else:
-        stored.size_bytes, stored.sha256 = size, sha256
+    stored = record_stored_file(session, storage, relative, media_type)
     if (survey_id is None) == (comparison_id is None):
         raise ValueError("a product belongs to exactly one survey or one comparison")
     owner = (

@@ -1,9 +1,10 @@
 """The reconstruction job: a video + flight log, or an image set, to the survey's DSM.
 
-Stages are the library's (worker.pipeline.reconstruction): ingest -> frames ->
-reconstruct -> georeference -> dsm, each run over the survey's work folder in storage.
-When the dsm stage is stored, the survey gets its products: `dsm` (COG), `points` (PLY),
-`trajectory` (GeoJSON flight path in WGS84) and `report` (timings and residuals).
+Stages are the library's (worker.pipeline.reconstruction.RECONSTRUCTION_PIPELINE): ingest
+-> frames -> reconstruct -> georeference -> dsm, each run over the survey's work folder in
+storage. A stage's files that its spec marks as products become the survey's products:
+`trajectory` (GeoJSON flight path in WGS84) after georeference; `dsm` (COG), `points` (PLY)
+and `report` (timings and residuals) after dsm.
 
 A video still arriving through a resumable upload is read from the upload's part file
 as it grows (the library waits for its bytes). The frames stage then waits for the
@@ -11,7 +12,6 @@ upload to be handed over (its part file moves into the survey); a later stage fi
 the video among the survey's files, or fails with the reason the upload was refused.
 """
 
-import json
 import os
 import time
 from pathlib import Path
@@ -19,32 +19,18 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from backend.config import get_settings
+from backend.db.arriving_uploads import arriving_video, part_path
 from backend.db.models import Job, Survey, SurveyKind, SurveyStatus, UploadState
-from backend.services.arriving_uploads import arriving_video, part_path
-from worker.jobs.products import COG_MEDIA_TYPE, StorageJob, register_product
+from backend.storage_layout import survey_reconstruction_file, survey_reconstruction_folder
+from worker.jobs.kind import JobKindName
+from worker.jobs.products import StorageJob, register_product
 from worker.pipeline import reconstruction as pipeline
-from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.dsm_inspect import inspect_dsm
 from worker.pipeline.errors import InputError
 from worker.pipeline.progress import ProgressFn
-from worker.pipeline.trajectory import read_trajectory_csv, trajectory_geojson
 
 IMAGES_DIR = "images"
 ARRIVING_DIR = "arriving"  # a link named as the user's video to the upload still arriving
-TRAJECTORY_GEOJSON = "trajectory.geojson"
-# Outputs of the dsm stage that become products: kind -> (file in the work folder, type).
-PRODUCTS: dict[str, tuple[str, str]] = {
-    "dsm": (pipeline.DSM, COG_MEDIA_TYPE),
-    "points": (pipeline.POINTS, "application/vnd.ply"),
-    "trajectory": (TRAJECTORY_GEOJSON, "application/geo+json"),
-    "report": (pipeline.REPORT, "application/json"),
-}
-
-
-def survey_folder(survey: Survey) -> str:
-    """Storage folder (relative) of a source survey's uploads and reconstruction."""
-    return f"surveys/{survey.site_id}/{survey.id}"
 
 
 def _link_files(files: dict[str, str], folder: Path) -> None:
@@ -71,8 +57,11 @@ def _wait_for_hand_over(part: Path, timeout_s: float, poll_s: float = 0.2) -> No
 
 
 class ReconstructionJob(StorageJob):
-    name = "reconstruction"
-    stages: tuple[str, ...] = tuple(pipeline.STAGES)
+    name = JobKindName.reconstruction
+    stages: tuple[str, ...] = pipeline.STAGES
+
+    def stage_help(self, stage: str) -> str:
+        return pipeline.RECONSTRUCTION_PIPELINE.stage(stage).help
 
     def _survey(self, session: Session, job: Job) -> Survey:
         return self.owner(session, Survey, job.survey_id, job.id)
@@ -87,7 +76,9 @@ class ReconstructionJob(StorageJob):
             "video": files.get("video"),
             "log": files.get("log"),
             "images": images,
-            "work_dir": str(self.storage.absolute(f"{survey_folder(survey)}/reconstruction")),
+            "work_dir": str(
+                self.storage.absolute(survey_reconstruction_folder(survey.site_id, survey.id))
+            ),
             "options": survey.options or {},
             "video_bytes": None,
             "video_refused": None,
@@ -105,7 +96,7 @@ class ReconstructionJob(StorageJob):
         work_dir = Path(inputs["work_dir"])
         if inputs.get("video_refused"):
             raise InputError(f"the video upload failed: {inputs['video_refused']}")
-        stall_s = get_settings().upload_stall_timeout_s
+        stall_s = self.context.settings.upload_stall_timeout_s
         video = inputs["video"]
         if inputs.get("video_bytes") is not None:
             _link_files({inputs["video_name"]: video}, work_dir / ARRIVING_DIR)
@@ -123,31 +114,26 @@ class ReconstructionJob(StorageJob):
         result = pipeline.run_stage(stage, work_dir, options, source, progress)
         if stage == "frames" and inputs.get("video_bytes") is not None:
             _wait_for_hand_over(Path(inputs["video"]), stall_s)
-        if stage == "dsm":
-            trajectory = read_trajectory_csv(work_dir / pipeline.TRAJECTORY)
-            write_text_atomic(
-                work_dir / TRAJECTORY_GEOJSON, json.dumps(trajectory_geojson(trajectory))
-            )
         return result
 
     def store_stage_result(
         self, session: Session, job: Job, stage: str, result: dict[str, Any]
     ) -> None:
-        if stage != "dsm":
-            return
         survey = self._survey(session, job)
-        folder = f"{survey_folder(survey)}/reconstruction"
-        for kind, (file_name, media_type) in PRODUCTS.items():
+        for output in pipeline.RECONSTRUCTION_PIPELINE.stage(stage).products():
             register_product(
                 session,
                 self.storage,
                 site_id=survey.site_id,
                 survey_id=survey.id,
-                kind=kind,
-                relative=f"{folder}/{file_name}",
-                media_type=media_type,
+                kind=output.product or output.file,
+                relative=survey_reconstruction_file(survey.site_id, survey.id, output.file),
+                media_type=output.media_type,
             )
-        info = inspect_dsm(self.storage.absolute(f"{folder}/{pipeline.DSM}"), "the DSM")
+        if stage != "dsm":
+            return
+        dsm = survey_reconstruction_file(survey.site_id, survey.id, pipeline.DSM)
+        info = inspect_dsm(self.storage.absolute(dsm), "the DSM")
         survey.crs = info.crs
         survey.footprint = info.footprint
         survey.resolution_m = float(max(info.resolution_m))

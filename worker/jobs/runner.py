@@ -15,10 +15,9 @@ from typing import Any
 from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
-from backend.config import get_settings
 from backend.db.models import Job, JobState, StageRun, StageState
-from backend.db.session import session_scope
-from backend.services import alerts
+from worker.jobs.context import JobContext
+from worker.jobs.events import JobEvent, publish
 from worker.jobs.registry import job_kind
 
 log = logging.getLogger(__name__)
@@ -39,8 +38,8 @@ def _following(job: Job, run: StageRun) -> StageRun | None:
     return min(later, key=lambda r: r.position) if later else None
 
 
-def _claim(session: Session, run_id: int, now: datetime) -> bool:
-    stale = now - timedelta(seconds=get_settings().stale_stage_after_s)
+def _claim(session: Session, run_id: int, now: datetime, stale_after_s: float) -> bool:
+    stale = now - timedelta(seconds=stale_after_s)
     claimed = session.execute(
         update(StageRun)
         .where(
@@ -66,9 +65,10 @@ def _claim(session: Session, run_id: int, now: datetime) -> bool:
 class _Heartbeat:
     """Keeps a running stage's heartbeat fresh and writes its progress, from a thread."""
 
-    def __init__(self, run_id: int, interval_s: float) -> None:
+    def __init__(self, context: JobContext, run_id: int) -> None:
+        self.context = context
         self.run_id = run_id
-        self.interval_s = interval_s
+        self.interval_s = context.settings.heartbeat_interval_s
         self.progress = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, daemon=True)
@@ -87,7 +87,7 @@ class _Heartbeat:
     def _beat(self) -> None:
         while not self._stop.wait(self.interval_s):
             try:
-                with session_scope() as session:
+                with self.context.session_scope() as session:
                     session.execute(
                         update(StageRun)
                         .where(StageRun.id == self.run_id, StageRun.state == StageState.running)
@@ -97,7 +97,7 @@ class _Heartbeat:
                 log.warning("heartbeat of stage run %s failed", self.run_id, exc_info=True)
 
 
-def execute_stage(job_id: int, stage: str) -> str | None:
+def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
     """Run `stage` of job `job_id` if it is not done; return the stage to queue next.
 
     Raises what the stage raised for transient failures (the caller retries); input
@@ -105,8 +105,7 @@ def execute_stage(job_id: int, stage: str) -> str | None:
     """
     from worker.pipeline.errors import InputError
 
-    settings = get_settings()
-    with session_scope() as session:
+    with context.session_scope() as session:
         run = _stage_run(session, job_id, stage)
         if run is None:
             return None
@@ -119,25 +118,25 @@ def execute_stage(job_id: int, stage: str) -> str | None:
                 return following.stage
             return None
         now = utcnow()
-        if not _claim(session, run.id, now):
+        if not _claim(session, run.id, now, context.settings.stale_stage_after_s):
             return None  # a live worker has it
         if job.state == JobState.queued:
             job.state = JobState.running
             job.started_at = now
-        kind = job_kind(job.kind)
+        kind = job_kind(job.kind, context)
         inputs: dict[str, Any] = kind.load_inputs(session, job)
         run_id = run.id
 
     started = time.perf_counter()
     try:
-        with _Heartbeat(run_id, settings.heartbeat_interval_s) as heartbeat:
+        with _Heartbeat(context, run_id) as heartbeat:
             result = kind.run_stage(stage, inputs, heartbeat.report)
     except InputError as exc:
-        fail_job(job_id, stage, str(exc))
+        fail_job(context, job_id, stage, str(exc))
         return None
     result = {**result, "wall_seconds": round(time.perf_counter() - started, 3)}
 
-    with session_scope() as session:
+    with context.session_scope() as session:
         run = session.get(StageRun, run_id)
         job = run.job
         kind.store_stage_result(session, job, stage, result)
@@ -157,9 +156,9 @@ def execute_stage(job_id: int, stage: str) -> str | None:
         return following.stage
 
 
-def record_retry(job_id: int, stage: str, error: str, delay_s: float) -> None:
+def record_retry(context: JobContext, job_id: int, stage: str, error: str, delay_s: float) -> None:
     """A transient failure: the stage goes back to pending until its retry is delivered."""
-    with session_scope() as session:
+    with context.session_scope() as session:
         run = _stage_run(session, job_id, stage)
         if run is not None and run.state != StageState.succeeded:
             run.state = StageState.pending
@@ -167,8 +166,8 @@ def record_retry(job_id: int, stage: str, error: str, delay_s: float) -> None:
             run.queued_at = utcnow() + timedelta(seconds=delay_s)
 
 
-def fail_job(job_id: int, stage: str, reason: str) -> None:
-    with session_scope() as session:
+def fail_job(context: JobContext, job_id: int, stage: str, reason: str) -> None:
+    with context.session_scope() as session:
         run = _stage_run(session, job_id, stage)
         if run is None:
             return
@@ -179,6 +178,7 @@ def fail_job(job_id: int, stage: str, reason: str) -> None:
         job.state = JobState.failed
         job.error = f"{stage}: {reason}"
         job.finished_at = utcnow()
-        job_kind(job.kind).on_failure(session, job, job.error)
+        job_kind(job.kind, context).on_failure(session, job, job.error)
         session.flush()
-        alerts.guarded(alerts.job_failed, session, job)
+        if job.site_id is not None:  # its listeners alert a site; training belongs to none
+            publish(JobEvent.job_failed, context.settings, session, job)

@@ -13,9 +13,19 @@ world frame (R_wc: x_world = R_wc @ x_cam + C).
 
 from __future__ import annotations
 
+from enum import StrEnum
+
 import numpy as np
 
 from worker.pipeline.ingest.flight_log import FlightLog
+
+
+class AttitudeSource(StrEnum):
+    """Which logged angles gave the cameras' attitude (kept in georeference.json)."""
+
+    gimbal = "gimbal"
+    aircraft_yaw_nadir = "aircraft_yaw_nadir"  # aircraft heading, camera assumed nadir
+    none = "none"
 
 
 def rotation_world_from_camera(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
@@ -37,12 +47,12 @@ def rotation_world_from_camera(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
 
 def camera_attitude_at(
     log: FlightLog, log_times: np.ndarray, assume_nadir: bool = True
-) -> tuple[np.ndarray | None, str]:
+) -> tuple[np.ndarray | None, AttitudeSource]:
     """Camera rotations (world ENU from camera) at log times, from the logged angles.
 
     Gimbal angles are used when the log has them (DJI gimbal yaw is absolute); else the
     aircraft yaw with a camera looking straight down (`assume_nadir`). Returns
-    (rotations or None, a word saying which source was used).
+    (rotations or None, the source used).
     """
     values = log.interpolate(log_times)
     if log.has_attitude("gimbal_pitch", "gimbal_yaw"):
@@ -52,13 +62,12 @@ def camera_attitude_at(
         rot = rotation_world_from_camera(
             values["gimbal_yaw"], values["gimbal_pitch"], np.nan_to_num(roll)
         )
-        return rot, "gimbal"
+        return rot, AttitudeSource.gimbal
     if assume_nadir and log.has_attitude("yaw"):
         yaw = values["yaw"]
-        return rotation_world_from_camera(yaw, np.full_like(yaw, -90.0), 0.0 * yaw), (
-            "aircraft_yaw_nadir"
-        )
-    return None, "none"
+        rot = rotation_world_from_camera(yaw, np.full_like(yaw, -90.0), 0.0 * yaw)
+        return rot, AttitudeSource.aircraft_yaw_nadir
+    return None, AttitudeSource.none
 
 
 def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

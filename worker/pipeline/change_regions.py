@@ -37,6 +37,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry import shape as to_shape
 
+from worker.pipeline.detection_record import DetectionProperties, Uncertainty
 from worker.pipeline.difference import (
     ERROR_MODEL_FILE,
     GAIN,
@@ -321,16 +322,32 @@ def describe_region(
     return Region(geometry=geometry, properties=properties, traits=traits, kind=kind)
 
 
-def feature(region: Region, crs: Any, extra: dict[str, Any]) -> dict[str, Any]:
-    """A GeoJSON Feature (WGS84) of a region, with its properties and `extra` ones."""
-    geojson = to_wgs84_geojson(region.geometry, crs)
-    lons_lats = shapely.get_coordinates(to_shape(geojson))
-    return {
-        "type": "Feature",
-        "bbox": [round(float(v), 7) for v in (*lons_lats.min(axis=0), *lons_lats.max(axis=0))],
-        "geometry": geojson,
-        "properties": {**region.properties, **extra},
-    }
+def region_detection(
+    region: Region,
+    crs: Any,
+    score: float,
+    method: str,
+    model_version: str | None = None,
+) -> tuple[dict[str, Any], DetectionProperties]:
+    """The detection record of a region: its WGS84 geometry and its properties."""
+    p = region.properties
+    uncertainty = Uncertainty(
+        area_m2_ci95=tuple(p["area_m2_ci95"]),
+        volume_loss_m3_ci95=tuple(p["volume_loss_m3_ci95"]),
+        volume_gain_m3_ci95=tuple(p["volume_gain_m3_ci95"]),
+        lod_m=p["lod_m"],
+    )
+    properties = DetectionProperties(
+        area_m2=p["area_m2"],
+        volume_loss_m3=p["volume_loss_m3"],
+        volume_gain_m3=p["volume_gain_m3"],
+        max_abs_dh_m=p["max_abs_dh_m"],
+        score=round(float(score), 3),
+        method=method,
+        model_version=model_version,
+        uncertainty=uncertainty,
+    )
+    return to_wgs84_geojson(region.geometry, crs), properties
 
 
 def _volume_sigma(model: ErrorModel, sigmas: np.ndarray, pixel_area: float) -> float:

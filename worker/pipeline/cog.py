@@ -23,6 +23,7 @@ from worker.pipeline.atomic import atomic_path
 from worker.pipeline.errors import InputError
 
 BLOCK_SIZE = 256
+COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
 
 
 class RasterRole(StrEnum):

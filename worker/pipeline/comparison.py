@@ -1,173 +1,219 @@
-"""The whole DSM comparison: align -> coregister -> difference -> vectorize | detect.
+"""The whole DSM comparison: align -> coregister -> difference -> the method's detection stage.
 
-The stages depend on the detection method (`stages_for(method)`):
+A comparison's pipeline is data (worker/pipeline/stages.py): three stages every method
+shares, then the detection stage of its method (worker/pipeline/detection_methods.py):
 
     threshold   align -> coregister -> difference -> vectorize  (the LoD method, the default)
     scored      align -> coregister -> difference -> score
     cnn         align -> coregister -> difference -> detect
 
-`STAGES` is the threshold method's list (kept for callers that predate the cnn method).
-`METHOD_SUMMARIES` says in one line what each method does (the API and the page show it).
-
 Each stage reads only the caller's two DSMs or files that earlier stages wrote into
-`work_dir`, and overwrites its own outputs atomically, so a stage can be re-run on its
-own (one Celery task per stage). Layout of `work_dir`:
-
-    pre_aligned.tif        align        pre DSM on the common metric grid (float32, -9999)
-    post_aligned.tif       align        post DSM on the same grid
-    post_coregistered.tif  coregister   post DSM corrected onto pre
-    stable_mask.tif        coregister   uint8: 1 stable terrain, 0 excluded, 255 nodata
-    dh.tif                 difference   post - pre in metres (float32, -9999)
-    significance.tif       difference   uint8: 0 none, 1 loss, 2 gain, 255 nodata
-    lod.tif                difference   per-pixel LoD95 in metres (float32, -9999)
-    error_model.json       difference   sigma_dh(slope, curvature) and the variogram
-    detections.geojson     vectorize    FeatureCollection, WGS84 lon/lat (threshold)
-    detections.geojson     score        scored candidates, WGS84 lon/lat (scored)
-    probability.tif        detect       per-pixel landslide probability, COG (cnn)
-    cells.geojson          detect       positive 32-pixel cells, WGS84 (cnn)
-    detections.geojson     detect       merged landslide polygons, WGS84 (cnn)
-
-The cnn method's detect stage runs the detection model (worker/pipeline/cnn) on the
-aligned pre DSM and the co-registered post DSM; its polygons carry the same properties
-as the threshold method's, plus the model version (see cnn/detect_stage.py).
+`work_dir` (the layout is in comparison_layout.py), and overwrites its own outputs
+atomically, so a stage can be re-run on its own (one Celery task per stage).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from worker.pipeline.align import AlignOptions, align
-from worker.pipeline.cnn.options import CnnOptions
-from worker.pipeline.coregister import CoregisterOptions, coregister
-from worker.pipeline.difference import DifferenceOptions, difference
-from worker.pipeline.errors import InputError, PipelineError
+from worker.pipeline.align import AlignOptions, AlignResult, align
+from worker.pipeline.cog import RasterRole
+from worker.pipeline.comparison_layout import (
+    DETECTIONS,
+    DH,
+    ERROR_MODEL,
+    LOD,
+    POST_ALIGNED,
+    POST_COREGISTERED,
+    PRE_ALIGNED,
+    SIGNIFICANCE,
+    STABLE_MASK,
+    ComparisonContext,
+    DetectionMethod,
+)
+from worker.pipeline.coregister import CoregisterOptions, CoregisterResult, coregister
+from worker.pipeline.detection_methods import (
+    default_method,
+    detection_method,
+    detection_methods,
+)
+from worker.pipeline.difference import DifferenceOptions, DifferenceResult, difference
+from worker.pipeline.errors import InputError
 from worker.pipeline.progress import ProgressFn, no_progress
-from worker.pipeline.scoring import ScoreOptions, score_candidates
-from worker.pipeline.vectorize import VectorizeOptions, vectorize
+from worker.pipeline.stages import GEOTIFF, Output, Pipeline, StageSpec
 
-METHODS = ("threshold", "scored", "cnn")
-METHOD_SUMMARIES = {
-    "scored": "Significant change (per-pixel LoD and area tests), each candidate scored as a "
-    "landslide probability by a calibrated model; trees and buildings set aside. Fewer false "
-    "alarms than threshold, but it missed 2 of 36 slides that threshold found "
-    "(docs/significance.md).",
-    "threshold": "The LoD method: every change beyond its per-pixel level of detection "
-    "(LoD95 from slope and curvature), larger than the errors' correlation.",
-    "cnn": "SlideNet, a neural network on both DSMs, trained on simulated survey flights; on "
-    "independent generators it found 1 of 36 slides (docs/significance.md).",
-}
-STAGES_BY_METHOD: dict[str, tuple[str, ...]] = {
-    "scored": ("align", "coregister", "difference", "score"),
-    "threshold": ("align", "coregister", "difference", "vectorize"),
-    "cnn": ("align", "coregister", "difference", "detect"),
-}
-STAGES = STAGES_BY_METHOD["threshold"]
-ALL_STAGES = ("align", "coregister", "difference", "vectorize", "score", "detect")
 __all__ = [
-    "ALL_STAGES",
-    "METHODS",
-    "METHOD_SUMMARIES",
-    "STAGES",
-    "STAGES_BY_METHOD",
+    "COMMON_STAGES",
+    "ComparisonContext",
     "ComparisonOptions",
     "ComparisonResult",
     "compare_dsms",
+    "comparison_pipeline",
     "default_method",
     "run_stage",
     "stages_for",
     "summarize",
 ]
 
-PRE_ALIGNED = "pre_aligned.tif"
-POST_ALIGNED = "post_aligned.tif"
-POST_COREGISTERED = "post_coregistered.tif"
-STABLE_MASK = "stable_mask.tif"
-DH = "dh.tif"
-SIGNIFICANCE = "significance.tif"
-DETECTIONS = "detections.geojson"
-PROBABILITY = "probability.tif"
-CELLS = "cells.geojson"
 
-_INPUTS = {
-    "align": (),
-    "coregister": (PRE_ALIGNED, POST_ALIGNED),
-    "difference": (PRE_ALIGNED, POST_COREGISTERED, STABLE_MASK),
-    "vectorize": (DH, SIGNIFICANCE, PRE_ALIGNED, POST_COREGISTERED),
-    "score": (DH, SIGNIFICANCE, PRE_ALIGNED, POST_COREGISTERED),
-    "detect": (PRE_ALIGNED, POST_COREGISTERED, DH, SIGNIFICANCE),
-}
-# Share of the whole comparison's progress bar taken by each stage (from measured times).
-_WEIGHTS = {
-    "scored": {"align": 0.1, "coregister": 0.6, "difference": 0.15, "score": 0.15},
-    "threshold": {"align": 0.1, "coregister": 0.75, "difference": 0.08, "vectorize": 0.07},
-    "cnn": {"align": 0.1, "coregister": 0.6, "difference": 0.06, "detect": 0.24},
-}
+def _align(context: ComparisonContext, progress: ProgressFn) -> AlignResult:
+    return align(
+        Path(context.pre_path),
+        Path(context.post_path),
+        context.file(PRE_ALIGNED),
+        context.file(POST_ALIGNED),
+        context.options.align,
+        progress,
+    )
+
+
+def _coregister(context: ComparisonContext, progress: ProgressFn) -> CoregisterResult:
+    return coregister(
+        context.file(PRE_ALIGNED),
+        context.file(POST_ALIGNED),
+        context.file(POST_COREGISTERED),
+        context.options.coregister,
+        progress,
+        stable_mask_out=context.file(STABLE_MASK),
+    )
+
+
+def _difference(context: ComparisonContext, progress: ProgressFn) -> DifferenceResult:
+    return difference(
+        context.file(PRE_ALIGNED),
+        context.file(POST_COREGISTERED),
+        context.file(DH),
+        context.file(SIGNIFICANCE),
+        context.options.difference,
+        stable_mask_path=context.file(STABLE_MASK),
+        progress=progress,
+    )
+
+
+# Weights: shares of the progress bar from measured times (coregistration dominates).
+COMMON_STAGES: tuple[StageSpec[ComparisonContext], ...] = (
+    StageSpec(
+        name="align",
+        run=_align,
+        help="both DSMs onto one grid",
+        outputs=(Output(PRE_ALIGNED), Output(POST_ALIGNED)),
+        weight=0.1,
+    ),
+    StageSpec(
+        name="coregister",
+        run=_coregister,
+        help="post DSM shifted onto pre",
+        inputs=(PRE_ALIGNED, POST_ALIGNED),
+        outputs=(
+            Output(POST_COREGISTERED, "post_coregistered", GEOTIFF, RasterRole.elevation),
+            Output(STABLE_MASK),
+        ),
+        weight=0.65,
+    ),
+    StageSpec(
+        name="difference",
+        run=_difference,
+        help="Δh and its per-pixel level of detection",
+        inputs=(PRE_ALIGNED, POST_COREGISTERED, STABLE_MASK),
+        outputs=(
+            Output(DH, "dh", GEOTIFF, RasterRole.elevation),
+            Output(SIGNIFICANCE, "significance", GEOTIFF, RasterRole.mask),
+            # A level in metres is continuous: overviews average it, as elevations.
+            Output(LOD, "lod", GEOTIFF, RasterRole.elevation),
+            Output(ERROR_MODEL),
+        ),
+        weight=0.1,
+    ),
+)
+
+
+def comparison_pipeline(method: str | DetectionMethod) -> Pipeline[ComparisonContext]:
+    """The stages of a comparison by `method`: the common ones, then its detection stage."""
+    if not isinstance(method, DetectionMethod):
+        method = detection_method(method)
+    return Pipeline(f"comparison ({method.name})", (*COMMON_STAGES, method.stage))
 
 
 def stages_for(method: str) -> tuple[str, ...]:
     """The stage names of a detection method, in order."""
-    try:
-        return STAGES_BY_METHOD[method]
-    except KeyError:
-        raise InputError(
-            f"unknown detection method {method!r}; available: {', '.join(METHODS)}"
-        ) from None
-
-
-def default_method() -> str:
-    """The one default of the product: the CLI, the API and the page all use it.
-
-    `threshold`, the LoD method with its per-pixel error model, because the default must
-    never be worse than the simple baseline (one NMAD for the raster) on any benchmark
-    set, and on the detection benchmark of 2026-11-25 (docs/significance.md) it was not:
-    same or higher slide recall on every generator, fewer false alarms on most. `scored`
-    cut false alarms further but missed two slides that the LoD method found, so it is
-    chosen by name until it recovers them. ComparisonOptions itself also defaults to
-    "threshold", so stored parameters keep their meaning.
-    """
-    return "threshold"
+    return comparison_pipeline(method).names
 
 
 @dataclass
 class ComparisonOptions:
+    """Options of the common stages, the method, and the method's own options.
+
+    `detection` is an instance of the method's `options_type` (its defaults when not
+    given). In stored parameters (`to_dict`) it sits under the method's `options_key`
+    ("vectorize", "score", "cnn"), as earlier versions stored it.
+    """
+
     align: AlignOptions = field(default_factory=AlignOptions)
     coregister: CoregisterOptions = field(default_factory=CoregisterOptions)
     difference: DifferenceOptions = field(default_factory=DifferenceOptions)
-    vectorize: VectorizeOptions = field(default_factory=VectorizeOptions)
-    score: ScoreOptions = field(default_factory=ScoreOptions)
-    cnn: CnnOptions = field(default_factory=CnnOptions)
-    method: str = "threshold"
+    method: str = field(default_factory=default_method)
+    detection: Any = None
+
+    def __post_init__(self) -> None:
+        options_type = detection_method(self.method).options_type
+        if self.detection is None:
+            self.detection = options_type()
+        elif not isinstance(self.detection, options_type):
+            raise InputError(
+                f"the {self.method} method takes {options_type.__name__}, "
+                f"not {type(self.detection).__name__}"
+            )
+
+    @property
+    def detection_method(self) -> DetectionMethod:
+        return detection_method(self.method)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return {
+            "align": dataclasses.asdict(self.align),
+            "coregister": dataclasses.asdict(self.coregister),
+            "difference": dataclasses.asdict(self.difference),
+            "method": self.method,
+            self.detection_method.options_key: dataclasses.asdict(self.detection),
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> ComparisonOptions:
-        """Build from `to_dict()` output; missing keys take defaults, unknown keys fail."""
+        """Build from `to_dict()` output; missing keys take defaults, unknown keys fail.
+
+        Parameters stored by earlier versions hold every method's options; those of other
+        methods are accepted when they are that method's defaults (what was stored), and
+        refused otherwise, since they would have no effect.
+        """
         data = dict(data or {})
-        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        method = detection_method(str(data.pop("method", default_method())))
+        common = {"align": AlignOptions, "coregister": CoregisterOptions}
+        common["difference"] = DifferenceOptions
+        others = {m.options_key: m for m in detection_methods() if m.name != method.name}
+        unknown = set(data) - set(common) - {method.options_key} - set(others)
         if unknown:
             raise InputError(f"unknown comparison options: {', '.join(sorted(unknown))}")
-        kwargs: dict[str, Any] = {}
-        for f in dataclasses.fields(cls):
-            if f.name not in data:
-                continue
-            if f.name == "method":
-                kwargs["method"] = str(data["method"])
-                if kwargs["method"] not in METHODS:
+        kwargs: dict[str, Any] = {
+            name: _options_from_dict(option_cls, name, data[name])
+            for name, option_cls in common.items()
+            if name in data
+        }
+        for key, other in others.items():
+            if key in data and key != method.options_key:
+                given = _options_from_dict(other.options_type, key, data[key])
+                if given != other.options_type():
                     raise InputError(
-                        f"unknown detection method {kwargs['method']!r}; "
-                        f"available: {', '.join(METHODS)}"
+                        f"{key} options belong to the {other.name} method, not {method.name}"
                     )
-                continue
-            option_cls = type(getattr(cls(), f.name))
-            kwargs[f.name] = _options_from_dict(option_cls, f.name, data[f.name])
-        return cls(**kwargs)
+        if method.options_key in data:
+            kwargs["detection"] = _options_from_dict(
+                method.options_type, method.options_key, data[method.options_key]
+            )
+        return cls(method=method.name, **kwargs)
 
 
 @dataclass
@@ -190,24 +236,13 @@ def compare_dsms(
     work_dir: Path,
     options: ComparisonOptions | None = None,
     progress: ProgressFn = no_progress,
+    from_stage: str | None = None,
 ) -> ComparisonResult:
-    """Run every stage of the method in order; outputs go to the layout in `work_dir`."""
+    """Run the method's stages in order (from `from_stage`: the earlier ones must have run)."""
     options = options or ComparisonOptions()
-    start = time.perf_counter()
-    results: dict[str, dict[str, Any]] = {}
-    done = 0.0
-    for stage in stages_for(options.method):
-        weight = _WEIGHTS[options.method][stage]
-
-        def stage_progress(fraction: float, done: float = done, weight: float = weight) -> None:
-            progress(min(1.0, done + weight * fraction))
-
-        results[stage] = run_stage(stage, pre_path, post_path, work_dir, options, stage_progress)
-        done += weight
-    progress(1.0)
-    return ComparisonResult(
-        results=results, work_dir=Path(work_dir), seconds=time.perf_counter() - start
-    )
+    context = ComparisonContext(Path(pre_path), Path(post_path), Path(work_dir), options)
+    run = comparison_pipeline(options.method).run(context, progress, from_stage)
+    return ComparisonResult(results=run.results, work_dir=run.work_dir, seconds=run.seconds)
 
 
 def run_stage(
@@ -222,88 +257,10 @@ def run_stage(
 
     The stage must belong to the method of `options` (see `stages_for`).
     """
-    if stage not in ALL_STAGES:
-        raise ValueError(f"unknown stage {stage!r}; stages are {', '.join(ALL_STAGES)}")
     if not isinstance(options, ComparisonOptions):
         options = ComparisonOptions.from_dict(options)
-    if stage not in stages_for(options.method):
-        raise InputError(
-            f"stage {stage!r} is not a stage of the {options.method} method; its stages "
-            f"are {', '.join(stages_for(options.method))}"
-        )
-    work = Path(work_dir)
-    work.mkdir(parents=True, exist_ok=True)
-    missing = [name for name in _INPUTS[stage] if not (work / name).exists()]
-    if missing:
-        raise PipelineError(
-            f"stage {stage!r} needs {', '.join(missing)} in {work}; run the earlier stages first"
-        )
-    result: Any
-    if stage == "align":
-        result = align(
-            Path(pre_path),
-            Path(post_path),
-            work / PRE_ALIGNED,
-            work / POST_ALIGNED,
-            options.align,
-            progress,
-        )
-    elif stage == "coregister":
-        result = coregister(
-            work / PRE_ALIGNED,
-            work / POST_ALIGNED,
-            work / POST_COREGISTERED,
-            options.coregister,
-            progress,
-            stable_mask_out=work / STABLE_MASK,
-        )
-    elif stage == "difference":
-        result = difference(
-            work / PRE_ALIGNED,
-            work / POST_COREGISTERED,
-            work / DH,
-            work / SIGNIFICANCE,
-            options.difference,
-            stable_mask_path=work / STABLE_MASK,
-            progress=progress,
-        )
-    elif stage == "detect":
-        from worker.pipeline.cnn.detect_stage import detect_cnn  # torch only when needed
-
-        result = detect_cnn(
-            work / PRE_ALIGNED,
-            work / POST_COREGISTERED,
-            work / DH,
-            work / SIGNIFICANCE,
-            work / PROBABILITY,
-            work / CELLS,
-            work / DETECTIONS,
-            options.cnn,
-            progress,
-        )
-    elif stage == "score":
-        result = score_candidates(
-            work / DH,
-            work / SIGNIFICANCE,
-            work / PRE_ALIGNED,
-            work / POST_COREGISTERED,
-            work / DETECTIONS,
-            options.score,
-            progress,
-            method=options.method,
-        )
-    else:
-        result = vectorize(
-            work / DH,
-            work / SIGNIFICANCE,
-            work / DETECTIONS,
-            options.vectorize,
-            options.method,
-            progress,
-            pre_path=work / PRE_ALIGNED,
-            post_path=work / POST_COREGISTERED,
-        )
-    return result.to_dict()
+    context = ComparisonContext(Path(pre_path), Path(post_path), Path(work_dir), options)
+    return comparison_pipeline(options.method).run_stage(stage, context, progress)
 
 
 def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -311,7 +268,8 @@ def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 
     shift_m is the correction applied to the post DSM (see coregister.py).
     """
-    found = results.get("vectorize") or results.get("score") or results.get("detect") or {}
+    detection_stages = [m.stage.name for m in detection_methods()]
+    found = next((results[s] for s in detection_stages if results.get(s)), {})
     shift = results.get("coregister", {})
     return {
         "detections": int(found.get("detections", 0)),

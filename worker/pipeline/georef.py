@@ -50,6 +50,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from worker.pipeline.attitude import (
+    AttitudeSource,
     camera_attitude_at,
     project_to_rotation,
 )
@@ -117,7 +118,7 @@ class MatchedPairs:
     world: np.ndarray  # (M, 3) log positions: UTM easting, northing, height
     local_rot: np.ndarray | None  # (M, 3, 3) world-from-camera, reconstruction frame
     world_rot: np.ndarray | None  # (M, 3, 3) from the logged attitude, ENU
-    attitude_source: str
+    attitude_source: AttitudeSource
     epsg: int
 
     def __len__(self) -> int:
@@ -134,7 +135,7 @@ class GeorefResult:
     inliers: int
     straightness: float
     attitude_used: bool
-    attitude_source: str
+    attitude_source: AttitudeSource
     attitude_disagreement_deg: float | None
     residuals: dict[str, float]
     time_offset_s: float
@@ -219,7 +220,7 @@ def match_pairs(
         world=world,
         local_rot=trajectory.rotations[ok],
         world_rot=world_rot,
-        attitude_source=source if world_rot is not None else "none",
+        attitude_source=source if world_rot is not None else AttitudeSource.none,
         epsg=epsg,
     )
 

@@ -2,9 +2,11 @@
 
     ingest -> frames -> reconstruct -> georeference -> dsm
 
-Each stage is a function over `work_dir` that reads the inputs and what earlier stages
-wrote there and (re)writes its own outputs atomically, so each can run as its own
-Celery task, be retried, and be run again with the same result. Every stage returns a
+The stages are declared once, as data (`RECONSTRUCTION_PIPELINE`, see stages.py): the
+CLI, the job layer and the page's stage help come from there. Each stage is a function
+over `work_dir` that reads the inputs and what earlier stages wrote there and
+(re)writes its own outputs atomically, so each can run as its own Celery task, be
+retried, and be run again with the same result. Every stage returns a
 JSON-friendly dict, also written as `<stage>.json`. Layout of `work_dir`:
 
     ingest.json              ingest        inputs, log summary, video or image-set
@@ -18,6 +20,7 @@ JSON-friendly dict, also written as `<stage>.json`. Layout of `work_dir`:
     reconstruct.json         reconstruct   method, counts, timings, real-time factor
     georeference/map.npz     georeference  the map in the survey's UTM zone
     trajectory.csv           georeference  camera trajectory with timestamps (UTM)
+    trajectory.geojson       georeference  the flight path in WGS84 (a survey product)
     georeference.json        georeference  CRS, per-segment fit, residuals, time offset
     points.ply               dsm           the cloud the DSM is made of (UTM, double)
     dsm.tif                  dsm           DSM, Cloud-Optimized GeoTIFF, nodata -9999
@@ -68,6 +71,8 @@ from worker.pipeline.ingest.camera import CameraOverride, Intrinsics, resolve_in
 from worker.pipeline.ingest.flight_log import FlightLog, read_flight_log
 from worker.pipeline.ingest.images import read_image_set
 from worker.pipeline.ingest.time_offset import (
+    OffsetMethod,
+    PriorSource,
     TimeOffset,
     check_overlap,
     estimate_time_offset,
@@ -86,11 +91,10 @@ from worker.pipeline.sfm import SfmOptions, run_sfm
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
 from worker.pipeline.slam.ties import TieOptions, keyframe_images, tie_flight_lines
-from worker.pipeline.trajectory import write_trajectory_csv
+from worker.pipeline.stages import COG_MEDIA_TYPE, GEOJSON, Output, Pipeline, StageSpec
+from worker.pipeline.trajectory import trajectory_geojson, write_trajectory_csv
 
-STAGES = ("ingest", "frames", "reconstruct", "georeference", "dsm")
 METHODS = ("auto", "slam", "sfm")
-_WEIGHTS = {"ingest": 0.02, "frames": 0.2, "reconstruct": 0.55, "georeference": 0.08, "dsm": 0.15}
 
 FRAMES_DIR = "frames"
 STILLS_DIR = "frames/stills"
@@ -98,6 +102,7 @@ RECON_MAP = "reconstruct/map.npz"
 SFM_DIR = "reconstruct/sfm"
 GEOREF_MAP = "georeference/map.npz"
 TRAJECTORY = "trajectory.csv"
+TRAJECTORY_GEOJSON = "trajectory.geojson"
 POINTS = "points.ply"
 DSM = "dsm.tif"
 REPORT = "report.json"
@@ -254,7 +259,9 @@ def ingest(
         out["images"] = image_set.to_dict()
         out["intrinsics_source"] = intr.to_dict()
         out["intrinsics"] = intr.to_dict()
-        out["time_offset_prior"] = TimeOffset(0.0, 0.0, "image_exif", "prior").to_dict()
+        out["time_offset_prior"] = TimeOffset(
+            0.0, 0.0, PriorSource.image_exif, OffsetMethod.prior
+        ).to_dict()
         out["warnings"] += image_set.warnings
     else:
         video = probe_video(given["video"], inputs.video_arrival())
@@ -270,10 +277,11 @@ def ingest(
         out["intrinsics"] = processing.to_dict()
         prior = prior_offset(log, video.duration_s, video.creation_time)
         if options.time_offset_s is not None:
-            prior = TimeOffset(options.time_offset_s, options.time_offset_s, "user", "user")
-        if prior.prior_source != "log_start" and video.duration_s:
+            given = options.time_offset_s
+            prior = TimeOffset(given, given, PriorSource.user, OffsetMethod.user)
+        if prior.prior_source != PriorSource.log_start and video.duration_s:
             name = Path(given["video"]).name
-            if prior.prior_source == "creation_time":
+            if prior.prior_source == PriorSource.creation_time:
                 # Some cameras stamp the end of the recording, not its start.
                 try:
                     check_overlap(log, prior.offset_s, video.duration_s, video_name=name)
@@ -283,8 +291,8 @@ def ingest(
                     prior = TimeOffset(
                         end_stamped,
                         end_stamped,
-                        "creation_time",
-                        "prior",
+                        PriorSource.creation_time,
+                        OffsetMethod.prior,
                         warnings=["the video's creation time is its end; offset adjusted"],
                     )
             else:
@@ -344,7 +352,7 @@ def frames(
         )
         out["frames"] = result.to_dict()
         prior = TimeOffset(**{**ing["time_offset_prior"], "warnings": []})
-        if prior.method == "user":
+        if prior.method == OffsetMethod.user:
             offset = prior
         else:
             log = _load_log(ing, options)
@@ -353,7 +361,7 @@ def frames(
                 log, scan.t[scan.kept], scan.motion_px_s[scan.kept], prior
             )
             # SRT clocks are the video's: the estimate is reported, not used.
-            offset = prior if prior.prior_source == "srt" else estimate
+            offset = prior if prior.prior_source == PriorSource.srt else estimate
             out["time_offset_estimate"] = estimate.to_dict()
             duration = float(scan.t[-1] - scan.t[0]) if scan.t.size > 1 else 0.0
             if duration:
@@ -495,7 +503,8 @@ def georeference(
     out: dict[str, Any] = {}
     # The trajectory fit is the finest estimate (measured: within 10 ms where image
     # motion was 15-90 ms off); SRT clocks and user offsets are kept as they are.
-    if offset.method != "user" and offset.prior_source not in ("srt", "image_exif"):
+    kept = (PriorSource.srt, PriorSource.image_exif)
+    if offset.method != OffsetMethod.user and offset.prior_source not in kept:
         longest = max(sparse.segments, key=lambda s: int((sparse.fr_segment == s).sum()))
         traj = sparse.trajectory(longest)
         traj = traj.subset(np.arange(len(traj)) % max(1, len(traj) // 400) == 0)
@@ -507,6 +516,7 @@ def georeference(
     traj = sparse.trajectory()
     traj.crs = result.crs
     write_trajectory_csv(work_dir / TRAJECTORY, traj)
+    write_text_atomic(work_dir / TRAJECTORY_GEOJSON, json.dumps(trajectory_geojson(traj)))
     out.update(result.to_dict())
     out["seconds"] = round(time.perf_counter() - start, 3)
     _write_json(work_dir / "georeference.json", out)
@@ -614,12 +624,78 @@ def write_report(work_dir: Path) -> dict[str, Any]:
     return report
 
 
-_STAGE_FUNCTIONS = {
-    "frames": frames,
-    "reconstruct": reconstruct,
-    "georeference": georeference,
-    "dsm": dsm,
-}
+@dataclass
+class ReconstructionContext:
+    """What a reconstruction stage reads: the work folder, the options and the inputs
+    (ingest needs them; frames takes the video from them when given)."""
+
+    work_dir: Path
+    options: ReconstructionOptions = field(default_factory=ReconstructionOptions)
+    inputs: ReconstructionInputs | None = None
+
+
+def _ingest_stage(context: ReconstructionContext, progress: ProgressFn) -> dict[str, Any]:
+    if context.inputs is None:
+        raise InputError("the ingest stage needs the inputs")
+    return ingest(context.inputs, context.work_dir, context.options, progress)
+
+
+# Weights: shares of the progress bar from measured times (reconstruction dominates).
+RECONSTRUCTION_PIPELINE: Pipeline[ReconstructionContext] = Pipeline(
+    "reconstruction",
+    (
+        StageSpec(
+            name="ingest",
+            run=_ingest_stage,
+            help="reading video and log",
+            outputs=(Output("ingest.json"),),
+            weight=0.02,
+        ),
+        StageSpec(
+            name="frames",
+            run=lambda c, p: frames(c.work_dir, c.options, p, c.inputs),
+            help="choosing frames",
+            inputs=("ingest.json",),
+            outputs=(Output(FRAMES_DIR), Output("frames.json")),
+            weight=0.2,
+        ),
+        StageSpec(
+            name="reconstruct",
+            run=lambda c, p: reconstruct(c.work_dir, c.options, p),
+            help="3-D reconstruction",
+            inputs=("ingest.json", "frames.json"),
+            outputs=(Output(RECON_MAP), Output("reconstruct.json")),
+            weight=0.55,
+        ),
+        StageSpec(
+            name="georeference",
+            run=lambda c, p: georeference(c.work_dir, c.options, p),
+            help="onto the ground",
+            inputs=("ingest.json", "frames.json", RECON_MAP),
+            outputs=(
+                Output(GEOREF_MAP),
+                Output(TRAJECTORY),
+                Output(TRAJECTORY_GEOJSON, "trajectory", GEOJSON),
+                Output("georeference.json"),
+            ),
+            weight=0.08,
+        ),
+        StageSpec(
+            name="dsm",
+            run=lambda c, p: dsm(c.work_dir, c.options, p),
+            help="DSM from the points",
+            inputs=("georeference.json", GEOREF_MAP),
+            outputs=(
+                Output(DSM, "dsm", COG_MEDIA_TYPE),
+                Output(POINTS, "points", "application/vnd.ply"),
+                Output(REPORT, "report", "application/json"),
+                Output("dsm.json"),
+            ),
+            weight=0.15,
+        ),
+    ),
+)
+STAGES = RECONSTRUCTION_PIPELINE.names
 
 
 def run_stage(
@@ -630,15 +706,8 @@ def run_stage(
     progress: ProgressFn = no_progress,
 ) -> dict[str, Any]:
     """Run one stage by name (ingest needs `inputs`; frames takes the video from them)."""
-    if stage == "ingest":
-        if inputs is None:
-            raise InputError("the ingest stage needs the inputs")
-        return ingest(inputs, work_dir, options, progress)
-    if stage == "frames":
-        return frames(work_dir, options, progress, inputs)
-    if stage not in _STAGE_FUNCTIONS:
-        raise InputError(f"unknown stage {stage!r}; stages are {STAGES}")
-    return _STAGE_FUNCTIONS[stage](work_dir, options, progress)
+    context = ReconstructionContext(Path(work_dir), options or ReconstructionOptions(), inputs)
+    return RECONSTRUCTION_PIPELINE.run_stage(stage, context, progress)
 
 
 @dataclass
@@ -671,19 +740,9 @@ def reconstruct_survey(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
+    from_stage: str | None = None,
 ) -> ReconstructionResult:
-    """Every stage in order (see the module doc)."""
-    options = options or ReconstructionOptions()
-    start = time.perf_counter()
-    results: dict[str, dict[str, Any]] = {}
-    done = 0.0
-    for stage in STAGES:
-        weight = _WEIGHTS[stage]
-
-        def stage_progress(f: float, done: float = done, weight: float = weight) -> None:
-            progress(min(1.0, done + weight * f))
-
-        results[stage] = run_stage(stage, work_dir, options, inputs, stage_progress)
-        done += weight
-    progress(1.0)
-    return ReconstructionResult(Path(work_dir), results, time.perf_counter() - start)
+    """Every stage in order (from `from_stage` on: the earlier ones must have run)."""
+    context = ReconstructionContext(Path(work_dir), options or ReconstructionOptions(), inputs)
+    run = RECONSTRUCTION_PIPELINE.run(context, progress, from_stage)
+    return ReconstructionResult(run.work_dir, run.results, run.seconds)

@@ -27,16 +27,17 @@ from worker.pipeline.change_regions import (
     RegionOptions,
     clean_mask,
     describe_region,
-    feature,
     label_regions,
     load_change_rasters,
     min_area_m2,
+    region_detection,
     significant_regions,
 )
+from worker.pipeline.detection_record import write_detections
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.scorer import load_scorer
-from worker.pipeline.vectorize import VectorizeResult, detection_totals, write_detections
+from worker.pipeline.vectorize import VectorizeResult, detection_totals
 
 
 @dataclass
@@ -77,16 +78,12 @@ def score_candidates(
     landslides = [r for r in regions if r.kind != SURFACE_CHANGE]
     surface = [r for r in regions if r.kind == SURFACE_CHANGE]
     probabilities = scorer.probability([r.traits for r in landslides])
-    features = [
-        feature(
-            r,
-            rasters.crs,
-            {"score": round(float(p), 3), "method": method, "model": scorer.reference},
-        )
+    detections = [
+        region_detection(r, rasters.crs, float(p), method, scorer.reference)
         for r, p in zip(landslides, probabilities, strict=True)
         if p >= threshold
     ]
-    collection = write_detections(out_geojson, features, rasters.crs)
+    collection = write_detections(out_geojson, detections, rasters.crs)
     progress(1.0)
     return ScoreResult(
         **detection_totals(collection, surface),

@@ -17,25 +17,24 @@ size = 1 - exp(-area / (2 * minimum area)) (0.39 at the minimum area, 0.86 at 4 
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.change_regions import (
     SURFACE_CHANGE,
     Region,
     RegionOptions,
     describe_region,
-    feature,
     label_regions,
     load_change_rasters,
     min_area_m2,
+    region_detection,
     significant_regions,
 )
+from worker.pipeline.detection_record import write_detections
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
@@ -94,11 +93,8 @@ def vectorize(
         region = describe_region(rasters, labels, label, window, options)
         (surface if region.kind == SURFACE_CHANGE else landslides).append(region)
     progress(0.9)
-    features = [
-        feature(r, rasters.crs, {"score": round(_score(r, smallest), 3), "method": method})
-        for r in landslides
-    ]
-    collection = write_detections(out_geojson, features, rasters.crs)
+    detections = [region_detection(r, rasters.crs, _score(r, smallest), method) for r in landslides]
+    collection = write_detections(out_geojson, detections, rasters.crs)
     progress(1.0)
     return VectorizeResult(
         **detection_totals(collection, surface),
@@ -120,19 +116,6 @@ def detection_totals(collection: dict[str, Any], surface: list[Region]) -> dict[
         "surface_changes": len(surface),
         "surface_change_area_m2": round(float(sum(r.geometry.area for r in surface)), 2),
     }
-
-
-def write_detections(out_geojson: Path, features: list[dict[str, Any]], crs: Any) -> dict:
-    """Number the features (largest first) and write the FeatureCollection atomically."""
-    features = sorted(features, key=lambda f: (-f["properties"]["area_m2"], f["bbox"]))
-    features = [{"id": number, **f} for number, f in enumerate(features, start=1)]
-    collection = {
-        "type": "FeatureCollection",
-        "features": features,
-        "metric_crs": crs_to_string(crs),  # foreign member: where area_m2 was measured
-    }
-    write_text_atomic(Path(out_geojson), json.dumps(collection, separators=(",", ":")))
-    return collection
 
 
 def _score(region: Region, smallest_m2: float) -> float:

@@ -8,7 +8,7 @@ from backend.api.serializers import comparison_out, detection_feature, job_out, 
 from backend.db.models import Comparison, Job, Site
 from backend.services.comparisons import ComparisonRejected, create_comparison
 from backend.services.deletion import delete_comparison
-from backend.services.jobs import QueueUnavailable
+from worker.jobs.control import QueueUnavailable
 
 router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
 

@@ -7,7 +7,7 @@ from fastapi.responses import JSONResponse
 
 from backend.api.deps import SessionDep, SiteDep, StorageDep
 from backend.api.routes.comparisons import comparison_of_site
-from worker.jobs.comparison import comparison_folder
+from backend.storage_layout import comparison_file
 
 router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
 
@@ -25,7 +25,7 @@ def get_cells(
     comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
-    path = storage.absolute(f"{comparison_folder(comparison.id)}/{CELLS_FILE}")
+    path = storage.absolute(comparison_file(comparison.id, CELLS_FILE))
     collection = (
         json.loads(path.read_text())
         if path.is_file()

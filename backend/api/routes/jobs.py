@@ -5,8 +5,7 @@ from backend.api.deps import CeleryDep, SessionDep, SiteDep, owned_by_site
 from backend.api.schemas import JobOut
 from backend.api.serializers import job_out
 from backend.db.models import Job, JobState, Site
-from backend.services.jobs import QueueUnavailable, reset_failed, start_job
-from worker.jobs.registry import job_kind
+from worker.jobs import control
 
 router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
 
@@ -32,11 +31,8 @@ def retry_job(job_id: int, site: SiteDep, session: SessionDep, celery: CeleryDep
     job = job_of_site(session, site, job_id)
     if job.state != JobState.failed:
         raise HTTPException(status.HTTP_409_CONFLICT, f"job {job.id} is {job.state}, not failed")
-    reset_failed(job)
-    job_kind(job.kind).on_retry(session, job)
-    session.commit()
     try:
-        start_job(celery, session, job)
-    except QueueUnavailable as exc:
+        control.retry_job(celery, session, job)
+    except control.QueueUnavailable as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
     return job_out(job)

@@ -1,6 +1,8 @@
-"""Reports of a site: on demand or from schedules; PDF and HTML downloads."""
+"""Reports of a site: on demand or from schedules; PDF and HTML downloads.
 
-import contextlib
+A report is built by a job (kind "report"): `job_id` names it, for its stage, progress
+and event stream under `/sites/{site}/jobs/{job_id}`.
+"""
 
 from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse
@@ -9,8 +11,7 @@ from sqlalchemy import select
 from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas_monitoring import ReportCreate, ReportOut
 from backend.db.models import Report, StoredFile
-from backend.services.reports import ReportRejected, request_report
-from worker.celery_app import BUILD_REPORT_TASK, QUEUE
+from backend.services.reports import ReportRejected, request_report, shown_status
 
 router = APIRouter(prefix="/sites/{site_id}/reports", tags=["reports"])
 API_PREFIX = "/api/v1"
@@ -25,7 +26,8 @@ def report_out(report: Report) -> ReportOut:
         scheduled_for=report.scheduled_for,
         comparison_id=report.comparison_id,
         trigger=report.trigger,
-        status=report.status,
+        status=shown_status(report),
+        job_id=report.job.id if report.job else None,
         summary=report.summary,
         error=report.error,
         created_at=report.created_at,
@@ -41,12 +43,10 @@ def create_report(
 ) -> ReportOut:
     """Queue a report of a comparison (default: the site's latest); answers at once."""
     try:
-        report = request_report(session, site, body.comparison_id)
+        # If the broker is down, the job stays queued and the recovery sweep queues it.
+        report = request_report(celery, session, site, body.comparison_id)
     except ReportRejected as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
-    # If the broker is down, the tick's sweep of lost reports queues it later.
-    with contextlib.suppress(Exception):
-        celery.send_task(BUILD_REPORT_TASK, args=[report.id], queue=QUEUE)
     return report_out(report)
 
 

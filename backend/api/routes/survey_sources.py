@@ -17,7 +17,6 @@ from backend.api.routes.surveys import survey_of_site
 from backend.api.schemas import JobOut, SourceSurveyCreate, SurveyFileOut, SurveyOut
 from backend.api.serializers import job_out
 from backend.db.models import Survey, SurveyFile
-from backend.services.jobs import QueueUnavailable
 from backend.services.survey_sources import (
     ROLES,
     SourceRejected,
@@ -27,6 +26,7 @@ from backend.services.survey_sources import (
     submit_reconstruction,
 )
 from backend.storage import UploadTooLarge
+from worker.jobs.control import QueueUnavailable
 from worker.pipeline.errors import InputError
 
 router = APIRouter(prefix="/sites/{site_id}/surveys", tags=["surveys from video or photos"])

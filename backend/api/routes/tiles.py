@@ -37,10 +37,9 @@ from backend.services.tiles import (
     render_tile,
     wmts_capabilities,
 )
+from backend.urls import api_url
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["map tiles"])
-
-API_PREFIX = "/api/v1"
 
 
 @dataclass(frozen=True)
@@ -114,10 +113,10 @@ def _auth_query(request: Request) -> str:
 
 
 def tile_template(base: str, source: LayerSource, query: str = "") -> str:
-    return (
-        f"{base}{API_PREFIX}/sites/{source.site_id}/{source.owner}/{source.owner_id}"
-        f"/tiles/{source.spec.name}/{{z}}/{{x}}/{{y}}.png{query}"
+    layer = api_url(
+        "sites", source.site_id, source.owner, source.owner_id, "tiles", source.spec.name
     )
+    return f"{base}{layer}/{{z}}/{{x}}/{{y}}.png{query}"
 
 
 async def _tile(

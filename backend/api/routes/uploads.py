@@ -22,7 +22,7 @@ from starlette.requests import ClientDisconnect
 from backend.api.deps import CurrentToken, SessionDep, SettingsDep, StorageDep
 from backend.api.schemas_map import UploadOut
 from backend.db.models import Upload, UploadState
-from backend.security import as_utc
+from backend.db.tokens import as_utc
 from backend.services.uploads import (
     CHECKSUM_ALGORITHMS,
     TUS_EXTENSIONS,

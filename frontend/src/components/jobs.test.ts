@@ -7,8 +7,8 @@ const failed: Job = {
   error: "coregister: the DSMs share no stable terrain", created_at: "2026-06-01T10:00:00Z", started_at: null,
   finished_at: "2026-06-01T10:05:00Z",
   stages: [
-    { stage: "align", state: "succeeded", progress: 1, attempts: 1, started_at: null, finished_at: null, error: null, result: null },
-    { stage: "coregister", state: "failed", progress: 0.3, attempts: 2, started_at: null, finished_at: null, error: "no stable terrain", result: null },
+    { stage: "align", help: "both DSMs onto one grid", state: "succeeded", progress: 1, attempts: 1, started_at: null, finished_at: null, error: null, result: null },
+    { stage: "coregister", help: "post DSM shifted onto pre", state: "failed", progress: 0.3, attempts: 2, started_at: null, finished_at: null, error: "no stable terrain", result: null },
   ],
 };
 
@@ -26,6 +26,7 @@ it("shows a failed job's reason and retries it", async () => {
   panel.show([failed]);
   expect(box.textContent).toContain("Failed: coregister: the DSMs share no stable terrain");
   expect(box.textContent).toContain("attempt 2");
+  expect(box.textContent).toContain("post DSM shifted onto pre"); // the stage help the API sends
   expect(box.textContent).toContain("1 Jun 2026, 12:00");
   const retry = box.querySelector("button[data-retry]") as HTMLButtonElement;
   expect(retry.textContent).toBe("Retry job 7");

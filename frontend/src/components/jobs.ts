@@ -8,21 +8,7 @@ import type { Job } from "../types";
 
 const FINAL = new Set(["succeeded", "failed"]);
 
-// One name for one thing: the stage names are the pipeline's own.
-const STAGE_HELP: Record<string, string> = {
-  align: "both DSMs onto one grid",
-  coregister: "post DSM shifted onto pre",
-  difference: "Δh and its per-pixel level of detection",
-  vectorize: "significant change into polygons",
-  score: "change candidates scored as landslides",
-  detect: "detection model on the DSMs",
-  ingest: "reading video and log",
-  frames: "choosing frames",
-  reconstruct: "3-D reconstruction",
-  georeference: "onto the ground",
-  dsm: "DSM from the points",
-};
-
+// One name for one thing: stage names and their help are the pipeline's own (from the API).
 export function jobTitle(job: Job): string {
   if (job.kind === "comparison") return `Comparison ${job.comparison_id ?? ""}`.trim();
   if (job.kind === "reconstruction") return `Reconstruction of survey ${job.survey_id ?? ""}`.trim();
@@ -94,7 +80,7 @@ export class JobsPanel {
         const stages = job.stages
           .map(
             (s) => `<li class="stage stage-${s.state}">
-              <label><span class="stage-name">${escapeHtml(s.stage)}</span> <span class="muted">${escapeHtml(STAGE_HELP[s.stage] ?? "")}</span>
+              <label><span class="stage-name">${escapeHtml(s.stage)}</span> <span class="muted">${escapeHtml(s.help ?? "")}</span>
               <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(s.stage)} progress">${formatPercent(s.progress)}</progress></label>
               <span class="stage-state">${s.state}${s.attempts > 1 ? `, attempt ${s.attempts}` : ""}</span>
             </li>`,

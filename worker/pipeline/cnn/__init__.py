@@ -1,11 +1,12 @@
-"""CNN landslide detection: the paper's patch classifier reproduced, and our dense model.
+"""CNN landslide detection at inference: the paper's patch classifier and our dense model.
 
-Modules: patches (dataset creation as the paper), normalize, augment, models,
-training (shared) with paper_training (Table 3) and dense_training (ours), inference
+Modules: patches (the paper's patch grid and 10 % rule), normalize, models, inference
 (patch and dense prediction), detect_stage (the comparison's `detect` stage), registry
-(weights + model cards), evaluation (Tables 6/7) and benchmark, dataset (manifests of
-DSM/mask triples), simdata and recon_noise (interim training data from the simulator),
-options (torch-free).
+(weights + model cards), options (torch-free).
+
+Training, datasets, simulated data, calibration and the benchmark live in
+worker/training, which imports this package; this package never imports it (nor the
+simulator), so the library stays free of training code.
 
 Importing this package does not import torch; the modules that need it do.
 """

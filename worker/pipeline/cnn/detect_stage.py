@@ -60,6 +60,7 @@ from worker.pipeline.cnn.options import CnnOptions
 from worker.pipeline.cnn.patches import CORE_PX, LABEL_FRACTION, PATCH_PX
 from worker.pipeline.cnn.registry import LoadedModel, resolve_model
 from worker.pipeline.cog import RasterRole, write_cog
+from worker.pipeline.detection_record import DetectionProperties, write_detections
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string, is_metric_projected, to_wgs84_geojson
 from worker.pipeline.progress import ProgressFn, no_progress
@@ -147,7 +148,7 @@ def detect_cnn(
     min_score = options.min_score
     if min_score is None:
         min_score = float(loaded.card.decision.get("min_score", 0.0))
-    features, kept = _polygons(
+    detections, kept = _polygons(
         labels,
         count,
         Path(probability_out),
@@ -179,20 +180,14 @@ def detect_cnn(
             separators=(",", ":"),
         ),
     )
-    write_text_atomic(
-        Path(detections_out),
-        json.dumps(
-            {"type": "FeatureCollection", "features": features, "metric_crs": crs_to_string(crs)},
-            separators=(",", ":"),
-        ),
-    )
+    write_detections(Path(detections_out), detections, crs)
     progress(1.0)
-    props = [f["properties"] for f in features]
+    props = [properties for _, properties in detections]
     return CnnResult(
-        detections=len(features),
-        total_area_m2=float(sum(p["area_m2"] for p in props)),
-        total_volume_loss_m3=float(sum(p["volume_loss_m3"] for p in props)),
-        total_volume_gain_m3=float(sum(p["volume_gain_m3"] for p in props)),
+        detections=len(detections),
+        total_area_m2=float(sum(p.area_m2 for p in props)),
+        total_volume_loss_m3=float(sum(p.volume_loss_m3 for p in props)),
+        total_volume_gain_m3=float(sum(p.volume_gain_m3 for p in props)),
         positive_cells=len(cells["features"]),
         cells=int(cells["count"]),
         method="cnn",
@@ -324,7 +319,7 @@ def _polygons(
     min_score: float,
 ) -> tuple[list[dict[str, Any]], list[int]]:
     """Polygons of the labelled landslides that are large and confident enough; returns
-    the features and the labels kept."""
+    their detection records (WGS84 geometry, properties) and the labels kept."""
     if count == 0:
         return [], []
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
@@ -334,7 +329,7 @@ def _polygons(
         min_px = math.ceil(options.min_area_m2 / pixel_area)
     lod = _lod(significance_path)
     objects = ndimage.find_objects(labels)
-    features = []
+    detections: list[tuple[dict[str, Any], DetectionProperties]] = []
     kept: list[int] = []
     with (
         rasterio.open(probability_path) as prob_src,
@@ -367,30 +362,17 @@ def _polygons(
             with np.errstate(invalid="ignore"):
                 loss = finite & (dh < -lod)
                 gain = finite & (dh > lod)
-            geojson = to_wgs84_geojson(geometry, crs)
-            lonlat = shapely.get_coordinates(to_shape(geojson))
-            features.append(
-                {
-                    "type": "Feature",
-                    "bbox": [
-                        round(float(v), 7) for v in (*lonlat.min(axis=0), *lonlat.max(axis=0))
-                    ],
-                    "geometry": geojson,
-                    "properties": {
-                        "area_m2": round(float(geometry.area), 2),
-                        "volume_loss_m3": round(float(-dh[loss].sum() * pixel_area), 2) + 0.0,
-                        "volume_gain_m3": round(float(dh[gain].sum() * pixel_area), 2) + 0.0,
-                        "max_abs_dh_m": round(
-                            float(np.abs(dh[finite]).max()) if finite.any() else 0.0, 3
-                        ),
-                        "score": round(score, 3),
-                        "method": "cnn",
-                        "model": model_version,
-                    },
-                }
+            properties = DetectionProperties(
+                area_m2=round(float(geometry.area), 2),
+                volume_loss_m3=round(float(-dh[loss].sum() * pixel_area), 2) + 0.0,
+                volume_gain_m3=round(float(dh[gain].sum() * pixel_area), 2) + 0.0,
+                max_abs_dh_m=round(float(np.abs(dh[finite]).max()) if finite.any() else 0.0, 3),
+                score=round(score, 3),
+                method="cnn",
+                model_version=model_version,
             )
-    features.sort(key=lambda f: (-f["properties"]["area_m2"], f["bbox"]))
-    return [{"id": n, **f} for n, f in enumerate(features, start=1)], kept
+            detections.append((to_wgs84_geojson(geometry, crs), properties))
+    return detections, kept
 
 
 def _landslides(classes: np.ndarray, positive_cells: np.ndarray) -> tuple[np.ndarray, int]:

@@ -25,10 +25,9 @@ import cv2
 import numpy as np
 import torch
 
-from worker.pipeline.cnn.augment import centre_crop
 from worker.pipeline.cnn.models import PatchNet, SlideNet
 from worker.pipeline.cnn.normalize import dense_inputs, relative_patch_pair
-from worker.pipeline.cnn.patches import centre_fractions, label_from_fraction
+from worker.pipeline.cnn.patches import centre_crop, centre_fractions, label_from_fraction
 
 HALO_PX = 96  # > receptive-field radius (~66 px) + half the reference window (16 px)
 DEFAULT_PIXEL_THRESHOLD = 0.5

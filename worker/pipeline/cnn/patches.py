@@ -104,6 +104,11 @@ def patch_origins(
     return rows, cols
 
 
+def centre_crop(patches: np.ndarray) -> np.ndarray:
+    """(..., 42, 42) -> (..., 32, 32): rows/cols 5..36, the centre the model sees."""
+    return patches[..., MARGIN_PX : MARGIN_PX + CORE_PX, MARGIN_PX : MARGIN_PX + CORE_PX]
+
+
 def window_sums(values: np.ndarray, rows: np.ndarray, cols: np.ndarray, size: int) -> np.ndarray:
     """Sum of `values` over the size x size windows with top-left corners rows x cols.
 

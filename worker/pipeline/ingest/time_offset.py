@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,26 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.flight_log import FlightLog
 
 _EARTH_RADIUS_M = 6_371_000.0
+
+
+class PriorSource(StrEnum):
+    """What the offset's prior came from (the values are kept in ingest.json and frames.json)."""
+
+    srt = "srt"  # DJI SRT: the log's clock is the video's
+    recording_flag = "recording_flag"  # the log's recording span
+    creation_time = "creation_time"  # the video's creation time against the log's UTC
+    log_start = "log_start"  # nothing ties the clocks: searched over the whole log
+    image_exif = "image_exif"  # photos: each carries its own position, no offset
+    user = "user"  # given in the options, used as it is
+
+
+class OffsetMethod(StrEnum):
+    """How the offset in use was found."""
+
+    prior = "prior"
+    motion_correlation = "motion_correlation"
+    trajectory_fit = "trajectory_fit"
+    user = "user"
 
 
 @dataclass
@@ -51,11 +72,16 @@ class TimeOffsetOptions:
 class TimeOffset:
     offset_s: float  # log_time = video_time + offset_s
     prior_s: float
-    prior_source: str
-    method: str  # "prior", "motion_correlation", "trajectory_fit"
+    prior_source: PriorSource
+    method: OffsetMethod
     score: float | None = None
     observable: bool = False
     warnings: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        # Read back from a stage's JSON the flags are plain strings: make them members.
+        self.prior_source = PriorSource(self.prior_source)
+        self.method = OffsetMethod(self.method)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -74,7 +100,7 @@ def prior_offset(
     """The best guess before looking at any image (see the module doc)."""
     warnings: list[str] = []
     if log.time_base == "video":
-        return TimeOffset(0.0, 0.0, "srt", "prior")
+        return TimeOffset(0.0, 0.0, PriorSource.srt, OffsetMethod.prior)
     segments = log.recording_segments()
     if segments:
         if video_duration_s:
@@ -86,17 +112,21 @@ def prior_offset(
                 f"the log has {len(segments)} recording spans; took the one starting at "
                 f"{start:.1f} s, whose length best matches the video"
             )
-        return TimeOffset(start, start, "recording_flag", "prior", warnings=warnings)
+        return TimeOffset(
+            start, start, PriorSource.recording_flag, OffsetMethod.prior, warnings=warnings
+        )
     epoch = log.utc_epoch
     if video_creation_utc and epoch is not None:
         created = datetime.fromisoformat(video_creation_utc)
         offset = (created - epoch).total_seconds()
-        return TimeOffset(offset, offset, "creation_time", "prior", warnings=warnings)
+        return TimeOffset(
+            offset, offset, PriorSource.creation_time, OffsetMethod.prior, warnings=warnings
+        )
     warnings.append(
         "nothing ties the video clock to the log clock (no recording flag, no UTC times): "
         "the offset is searched over the whole log"
     )
-    return TimeOffset(0.0, 0.0, "log_start", "prior", warnings=warnings)
+    return TimeOffset(0.0, 0.0, PriorSource.log_start, OffsetMethod.prior, warnings=warnings)
 
 
 def log_ground_speed(log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +171,7 @@ def estimate_time_offset(
 ) -> TimeOffset:
     """Correlate image motion (px/s at video times) with log speed / height.
 
-    Returns the prior (method "prior", observable False) when the correlation is weak
+    Returns the prior (method `prior`, observable False) when the correlation is weak
     or not distinct, with a warning that says so.
     """
     options = options or TimeOffsetOptions()
@@ -150,7 +180,11 @@ def estimate_time_offset(
     ok = np.isfinite(image_speed)
     video_t, image_speed = video_t[ok], image_speed[ok]
     result = TimeOffset(
-        prior.offset_s, prior.offset_s, prior.prior_source, "prior", warnings=list(prior.warnings)
+        prior.offset_s,
+        prior.offset_s,
+        prior.prior_source,
+        OffsetMethod.prior,
+        warnings=list(prior.warnings),
     )
     if video_t.size < 10 or video_t[-1] - video_t[0] < 5.0:
         result.warnings.append("video too short to estimate the time offset from motion")
@@ -171,12 +205,13 @@ def estimate_time_offset(
     if np.std(visual) < 1e-6 * max(np.mean(visual), 1e-9) or np.std(lsignal) < 1e-9:
         result.warnings.append("constant motion: the time offset cannot be observed")
         return result
-    half = options.wide_search_s if prior.prior_source == "log_start" else options.search_s
+    wide = prior.prior_source == PriorSource.log_start
+    half = options.wide_search_s if wide else options.search_s
     lo = prior.offset_s - half
     hi = prior.offset_s + half
-    if prior.prior_source == "creation_time":
+    if prior.prior_source == PriorSource.creation_time:
         lo -= grid[-1] - grid[0]  # the stamp may be the end of the recording
-    if prior.prior_source == "log_start":
+    if wide:
         lo = lt[0] - grid[0] - (grid[-1] - grid[0]) * (1 - options.min_overlap)
         hi = lt[-1] - grid[0] - (grid[-1] - grid[0]) * options.min_overlap
     offsets = np.arange(lo, hi + options.step_s / 2, options.step_s)
@@ -199,7 +234,7 @@ def estimate_time_offset(
         )
         return result
     result.offset_s = refined
-    result.method = "motion_correlation"
+    result.method = OffsetMethod.motion_correlation
     result.score = peak
     result.observable = True
     return result
@@ -279,7 +314,7 @@ def refine_time_offset(
         result.warnings.append("trajectory fit does not constrain the time offset; kept")
         return result
     result.offset_s = refined
-    result.method = "trajectory_fit"
+    result.method = OffsetMethod.trajectory_fit
     result.observable = True
     result.score = float(costs[best])
     return result

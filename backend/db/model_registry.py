@@ -2,8 +2,8 @@
 
 A row (ModelVersion) points at a weights file and copies its model card. The model that
 ships in the package is registered on first use (`ensure_shipped_model`); models trained
-by the platform (worker/tasks_training.py) live in storage under `models/`. At most one
-row is the default: what a cnn comparison runs when its parameters name no model.
+by the platform (backend/services/training.py) live in storage under `models/`. At most
+one row is the default: what a cnn comparison runs when its parameters name no model.
 
 Comparisons refer to models as "name@version" (kept in their parameters, so a comparison
 says which model it ran); only the worker turns that into a file path (`card_path`).
@@ -26,7 +26,6 @@ from backend.storage import LocalStorage
 from worker.pipeline.cnn.options import PACKAGE_WEIGHTS, default_model_path
 
 PACKAGE, STORAGE = "package", "storage"
-MODELS_FOLDER = "models"
 
 
 class UnknownModel(LookupError):
@@ -127,7 +126,6 @@ def card_path(row: ModelVersion, storage: LocalStorage) -> Path:
 
 
 __all__ = [
-    "MODELS_FOLDER",
     "PACKAGE",
     "STORAGE",
     "UnknownModel",

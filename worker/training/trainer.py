@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from worker.pipeline.errors import InputError
 
 if TYPE_CHECKING:  # the training modules import torch: only when training
-    from worker.pipeline.cnn.training import LogFn, TrainingResult
+    from worker.training.training import LogFn, TrainingResult
 
 MODEL_KINDS = ("slidenet", "patchnet-fixed", "patchnet-loose")
 EXCLUSION_MARGIN_PX = {"slidenet": 64, "patchnet": 42}
@@ -49,8 +49,8 @@ def train_model(
 ) -> TrainingResult:
     """Train a model of `model_kind` on the manifest into `out_dir`; returns the result
     (card path, card, history)."""
-    from worker.pipeline.cnn.dataset import load_manifest
-    from worker.pipeline.cnn.training import Exclusion, quiet
+    from worker.training.dataset import load_manifest
+    from worker.training.training import Exclusion, quiet
 
     log = log or quiet
     if model_kind not in MODEL_KINDS:
@@ -65,11 +65,11 @@ def train_model(
     name = name or model_kind
     overrides = dict(overrides or {})
     if family == "slidenet":
-        from worker.pipeline.cnn.dense_training import DenseTrainingOptions, train_slidenet
+        from worker.training.dense_training import DenseTrainingOptions, train_slidenet
 
         options = _options(DenseTrainingOptions, overrides, seed=seed, num_threads=threads)
         return train_slidenet(manifest, Path(out_dir), name, options, exclude, log)
-    from worker.pipeline.cnn.paper_training import PatchTrainingOptions, train_patchnet
+    from worker.training.paper_training import PatchTrainingOptions, train_patchnet
 
     mode = model_kind.split("-")[1]
     options = _options(PatchTrainingOptions, overrides, mode=mode, seed=seed, num_threads=threads)

@@ -16,8 +16,8 @@ mound; the paper's test set is pair Step1-Step5 in mound-A (`test` in the manife
 growth, the scenario's small surface changes), for training negatives and false-alarm
 checks. `combine_datasets` lists the pairs of several datasets in one manifest.
 
-This module imports the simulator lazily; the rest of the detection library does not
-depend on it.
+This module imports the simulator lazily, so importing the training package does not
+load it; the detection library (worker/pipeline) never depends on the simulator.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 from rasterio.crs import CRS as RioCRS
 
-from worker.pipeline.cnn.dataset import write_manifest
-from worker.pipeline.cnn.recon_noise import ReconstructionNoise, degrade
 from worker.pipeline.raster_io import write_geotiff
+from worker.training.dataset import write_manifest
+from worker.training.recon_noise import ReconstructionNoise, degrade
 
 MOUND_ZONE_M = 6.0
 

@@ -24,14 +24,9 @@ import cv2
 import numpy as np
 
 from worker.pipeline.cnn.normalize import vertical_level_m
-from worker.pipeline.cnn.patches import CORE_PX, MARGIN_PX
+from worker.pipeline.cnn.patches import CORE_PX, MARGIN_PX, centre_crop
 
 MAX_LEVELS = 10  # the paper's +-10 grey levels
-
-
-def centre_crop(patches: np.ndarray) -> np.ndarray:
-    """(..., 42, 42) -> (..., 32, 32): rows/cols 5..36."""
-    return patches[..., MARGIN_PX : MARGIN_PX + CORE_PX, MARGIN_PX : MARGIN_PX + CORE_PX]
 
 
 def fixed_crop(pre: np.ndarray, post: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -25,9 +25,9 @@ from pyproj import Transformer
 from rasterio.features import rasterize
 from shapely.geometry import shape
 
-from worker.pipeline.cnn.dataset import Pair
 from worker.pipeline.comparison import ComparisonOptions, compare_dsms
 from worker.pipeline.raster_io import write_geotiff
+from worker.training.dataset import Pair
 
 MARGIN = 0.05
 
@@ -96,9 +96,9 @@ def found_groups(pair: Pair, card: Path, work_dir: Path, threads: int = 2) -> li
     write_geotiff(work / "input" / "pre.tif", pair.pre, pair.transform, pair.crs)
     write_geotiff(work / "input" / "post.tif", pair.post, pair.transform, pair.crs)
     options = ComparisonOptions(method="cnn")
-    options.cnn.model = str(card)
-    options.cnn.min_score = 0.0
-    options.cnn.num_threads = threads
+    options.detection.model = str(card)
+    options.detection.min_score = 0.0
+    options.detection.num_threads = threads
     compare_dsms(work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", options)
     features = json.loads((work / "cmp" / "detections.geojson").read_text())["features"]
     to_grid = Transformer.from_crs("EPSG:4326", pair.crs, always_xy=True)

@@ -8,10 +8,11 @@ from sqlalchemy.orm import Session
 
 from backend.db.models import Survey, SurveyKind, Upload, UploadState
 from backend.storage import LocalStorage
+from backend.storage_layout import upload_part_file
 
 
 def part_relative_path(upload: Upload) -> str:
-    return f"uploads/{upload.site_id}/{upload.id}.part"
+    return upload_part_file(upload.site_id, upload.id)
 
 
 def part_path(storage: LocalStorage, upload: Upload) -> Path:

@@ -175,8 +175,8 @@ def reconstructed_dataset(
     """Simulate `scenario` (`simulation`, default `survey_simulation()`), reconstruct
     every step's survey, and write the detection dataset `out_dir/dataset.json` (pairs
     Step1 -> Stepk) on those DSMs. With `slides=False` it is a no-change dataset."""
-    from worker.pipeline.cnn.simdata import dataset_from_simulation
     from worker.simulator import simulate_scenario
+    from worker.training.simdata import dataset_from_simulation
 
     simulation = simulation or survey_simulation()
     out = Path(out_dir)
@@ -209,7 +209,7 @@ def default_training_set(out_dir: Path, log: Callable[[str], None] = print) -> P
       seed 6, of a paper-mounds no-change pair (seed 2) and of the hillslope random
       slides (seeds 3 and 4) degraded by recon_noise.
     """
-    from worker.pipeline.cnn.simdata import (
+    from worker.training.simdata import (
         combine_datasets,
         simulate_dataset,
         write_no_change_dataset,

@@ -3,11 +3,11 @@
 PyTorch, Adam, binary cross-entropy, batch 32, He initialisation and zero biases, random
 flips, 20 % validation, learning rate 1e-6 (fixed) / 1e-5 (loose) held constant, L2
 regularisation 0.01 (Adam's weight decay, i.e. 0.01 x w added to the gradient), 100
-epochs. The patches are the paper's (patches.py), classes balanced and optionally capped
-per class (the paper had 1561). Fixed training feeds the 32-pixel centres; loose
-training crops the pre patch at random inside the margin and adds a random vertical
-offset (augment.py). Validation uses the centre crop. The weights of the last epoch are
-kept (the paper names no early stopping); the history records every epoch.
+epochs. The patches are the paper's (worker/pipeline/cnn/patches.py), classes balanced
+and optionally capped per class (the paper had 1561). Fixed training feeds the 32-pixel
+centres; loose training crops the pre patch at random inside the margin and adds a
+random vertical offset (augment.py). Validation uses the centre crop. The weights of the
+last epoch are kept (the paper names no early stopping); the history records every epoch.
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ import torch
 from torch import nn
 
 from worker.pipeline.atomic import write_text_atomic
-from worker.pipeline.cnn import augment
-from worker.pipeline.cnn.dataset import DatasetManifest, Pair
 from worker.pipeline.cnn.models import PatchNet
 from worker.pipeline.cnn.normalize import CLIP_UNITS, relative_patch_pair
 from worker.pipeline.cnn.patches import PatchSet, balance_classes, extract_patches
 from worker.pipeline.cnn.registry import ModelCard, save_model
-from worker.pipeline.cnn.training import (
+from worker.training import augment
+from worker.training.dataset import DatasetManifest, Pair
+from worker.training.training import (
     CHECKPOINT,
     METRICS,
     Exclusion,

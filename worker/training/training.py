@@ -21,9 +21,9 @@ import torch
 from scipy import ndimage
 
 from worker.pipeline.atomic import atomic_path
-from worker.pipeline.cnn.dataset import DatasetManifest, Pair, load_pair
 from worker.pipeline.cnn.patches import PATCH_PX
 from worker.pipeline.cnn.registry import ModelCard
+from worker.training.dataset import DatasetManifest, Pair, load_pair
 
 LogFn = Callable[[str], None]
 CHECKPOINT = "checkpoint.pt"

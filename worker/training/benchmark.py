@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 
 from worker.pipeline.atomic import write_text_atomic
-from worker.pipeline.cnn.dataset import load_manifest
-from worker.pipeline.cnn.evaluation import evaluate_manifest, false_alarms, format_table
-from worker.pipeline.cnn.paper_training import PatchTrainingOptions, train_patchnet
 from worker.pipeline.cnn.registry import LoadedModel, load_model, resolve_model
-from worker.pipeline.cnn.training import Exclusion
+from worker.training.dataset import load_manifest
+from worker.training.evaluation import evaluate_manifest, false_alarms, format_table
+from worker.training.paper_training import PatchTrainingOptions, train_patchnet
+from worker.training.training import Exclusion
 
 PAPER_MAX_PER_CLASS = 1561
 
@@ -58,8 +58,8 @@ def ensure_dataset(
 ) -> Path:
     """The dataset of `scenario` (cached in work_dir/data); `slides=False`: a no-change
     pair, Step1 -> Step2 with nuisance only."""
-    from worker.pipeline.cnn.reconstructed_data import reconstructed_dataset, survey_simulation
-    from worker.pipeline.cnn.simdata import simulate_dataset, write_no_change_dataset
+    from worker.training.reconstructed_data import reconstructed_dataset, survey_simulation
+    from worker.training.simdata import simulate_dataset, write_no_change_dataset
 
     if dsm_source not in DSM_SOURCES:
         raise ValueError(f"dsm_source must be one of {DSM_SOURCES}")
@@ -176,8 +176,8 @@ def run_benchmark(
 ) -> dict[str, Any]:
     import torch
 
-    from worker.pipeline.cnn.dataset import load_pair
     from worker.simulator.registration import registration_patterns, shift_dsm
+    from worker.training.dataset import load_pair
 
     torch.set_num_threads(threads)
     work = Path(work_dir)

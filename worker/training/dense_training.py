@@ -33,8 +33,6 @@ import torch
 from torch import nn
 
 from worker.pipeline.atomic import write_text_atomic
-from worker.pipeline.cnn import augment
-from worker.pipeline.cnn.dataset import DatasetManifest, Pair
 from worker.pipeline.cnn.inference import crop_padded, patch_scores_from_probability, predict_dense
 from worker.pipeline.cnn.models import SlideNet
 from worker.pipeline.cnn.normalize import (
@@ -54,7 +52,9 @@ from worker.pipeline.cnn.patches import (
     window_sums,
 )
 from worker.pipeline.cnn.registry import ModelCard, save_model
-from worker.pipeline.cnn.training import (
+from worker.training import augment
+from worker.training.dataset import DatasetManifest, Pair
+from worker.training.training import (
     CHECKPOINT,
     METRICS,
     Exclusion,

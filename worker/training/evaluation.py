@@ -46,7 +46,6 @@ import shapely
 from pyproj import Transformer
 from shapely.geometry import shape as to_shape
 
-from worker.pipeline.cnn.dataset import DatasetManifest, load_pair
 from worker.pipeline.cnn.inference import predict_patches
 from worker.pipeline.cnn.patches import (
     PATCH_PX,
@@ -57,9 +56,10 @@ from worker.pipeline.cnn.patches import (
     usable_windows,
 )
 from worker.pipeline.cnn.registry import LoadedModel
-from worker.pipeline.cnn.training import binary_metrics
 from worker.pipeline.comparison import ComparisonOptions, compare_dsms, run_stage
 from worker.pipeline.raster_io import write_geotiff
+from worker.training.dataset import DatasetManifest, load_pair
+from worker.training.training import binary_metrics
 
 PAPER_TABLES = {
     "cnn_fixed": {
@@ -203,7 +203,7 @@ def evaluate_pattern(
     write_geotiff(inputs / "pre.tif", pre, transform, crs)
     write_geotiff(inputs / "post.tif", post, transform, crs)
     options = ComparisonOptions(method="threshold")
-    options.vectorize.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
+    options.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
     t0 = time.perf_counter()
     result = compare_dsms(inputs / "pre.tif", inputs / "post.tif", work / "comparison", options)
     run.seconds["lod"] = time.perf_counter() - t0
@@ -224,8 +224,8 @@ def evaluate_pattern(
 
     if best is not None:
         options = ComparisonOptions(method="cnn")
-        options.cnn.model = str(best.path.with_suffix(".json"))
-        options.cnn.num_threads = threads
+        options.detection.model = str(best.path.with_suffix(".json"))
+        options.detection.num_threads = threads
         t0 = time.perf_counter()
         detect = run_stage(
             "detect", inputs / "pre.tif", inputs / "post.tif", work / "comparison", options
@@ -334,13 +334,13 @@ def false_alarms(
     write_geotiff(work / "input" / "pre.tif", pre, transform, crs)
     write_geotiff(work / "input" / "post.tif", post, transform, crs)
     threshold = ComparisonOptions(method="threshold")
-    threshold.vectorize.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
+    threshold.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
     lod = compare_dsms(
         work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", threshold
     )
     cnn = ComparisonOptions(method="cnn")
-    cnn.cnn.model = str(best.path.with_suffix(".json"))
-    cnn.cnn.num_threads = threads
+    cnn.detection.model = str(best.path.with_suffix(".json"))
+    cnn.detection.num_threads = threads
     detect = run_stage(
         "detect", work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", cnn
     )

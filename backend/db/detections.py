@@ -1,0 +1,58 @@
+"""Detection rows from and to the library's one detection record (detection_record.py).
+
+A comparison's detections are stored once, as rows; the detections product file and the
+API's GeoJSON are both written from the rows by `detection_feature`, so they have the same
+ids and the same field names.
+"""
+
+from typing import Any
+
+from backend.db.models import Detection
+from worker.pipeline import detection_record
+from worker.pipeline.detection_record import DetectionProperties, Uncertainty
+
+
+def detection_row(
+    comparison_id: int, geometry: dict[str, Any], properties: DetectionProperties
+) -> Detection:
+    min_lon, min_lat, max_lon, max_lat = detection_record.geometry_bbox(geometry)
+    uncertainty = properties.to_dict()["uncertainty"]
+    return Detection(
+        comparison_id=comparison_id,
+        geometry=geometry,
+        min_lon=min_lon,
+        min_lat=min_lat,
+        max_lon=max_lon,
+        max_lat=max_lat,
+        area_m2=properties.area_m2,
+        volume_loss_m3=properties.volume_loss_m3,
+        volume_gain_m3=properties.volume_gain_m3,
+        max_abs_dh_m=properties.max_abs_dh_m,
+        score=properties.score,
+        method=properties.method,
+        model_version=properties.model_version,
+        uncertainty=uncertainty,
+    )
+
+
+def detection_properties(row: Detection) -> DetectionProperties:
+    return DetectionProperties(
+        area_m2=row.area_m2,
+        volume_loss_m3=row.volume_loss_m3,
+        volume_gain_m3=row.volume_gain_m3,
+        max_abs_dh_m=row.max_abs_dh_m,
+        score=row.score,
+        method=row.method,
+        model_version=row.model_version,
+        uncertainty=Uncertainty.from_dict(row.uncertainty) if row.uncertainty else None,
+    )
+
+
+def detection_feature(row: Detection, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The row as a GeoJSON Feature: its id, its record, its comparison (and `extra`)."""
+    return detection_record.detection_feature(
+        row.id,
+        row.geometry,
+        detection_properties(row),
+        {"comparison_id": row.comparison_id, **(extra or {})},
+    )

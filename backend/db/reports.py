@@ -1,0 +1,216 @@
+"""What a report shows, read from the database, and the files of a built report recorded.
+
+The report job (worker/jobs/report.py) gathers a report's data here (`gather`: plain
+values and file paths for the report library, worker/reports) and records what it built
+(`store_files`); the service (backend/services/reports.py) uses `latest_comparison` to
+refuse a report that could not be made. It sits with the domain, below the services, as
+the job layer imports no service.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from shapely.geometry import shape
+from sqlalchemy import select
+from sqlalchemy.orm import Session, aliased
+
+from backend.db.models import Comparison, JobState, Report, Site, Survey
+from backend.db.stored_files import record_stored_file
+from backend.storage import LocalStorage
+from backend.storage_layout import report_file
+from worker.pipeline.detection_methods import detection_method
+from worker.pipeline.errors import InputError
+from worker.reports import Change, DetectionRow, ReportData
+
+MEDIA_TYPES = {"pdf": "application/pdf", "html": "text/html; charset=utf-8"}
+FILES = {"pdf": "report.pdf", "html": "report.html"}
+
+
+class ReportRejected(ValueError):
+    """A report that cannot be made; the message says why."""
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+def _aware(moment: datetime | None) -> datetime | None:
+    if moment is None:
+        return None
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+def _detection_model(comparison: Comparison) -> str | None:
+    """ "name@version" of the model that found the comparison's detections, if any: what
+    its detection stage ran, else the registered model its parameters named (the rule of
+    services/comparisons.py: detection_model, over a finished comparison's summary)."""
+    stages = (comparison.summary or {}).get("stages") or {}
+    ran = next(
+        (r["model"] for r in stages.values() if isinstance(r, dict) and r.get("model")), None
+    )
+    if ran:
+        return ran
+    try:
+        key = detection_method(comparison.method).options_key
+    except InputError:  # a method whose module this process has not loaded
+        return None
+    return ((comparison.parameters or {}).get(key) or {}).get("model")
+
+
+def latest_comparison(session: Session, site_id: int) -> Comparison | None:
+    post = aliased(Survey)
+    return session.scalar(
+        select(Comparison)
+        .join(post, Comparison.post_survey_id == post.id)
+        .where(Comparison.site_id == site_id, Comparison.status == JobState.succeeded)
+        .order_by(post.captured_at.desc(), Comparison.id.desc())
+        .limit(1)
+    )
+
+
+def model_version(method: str, detection_model: str | None = None) -> str:
+    def of(package: str) -> str:
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            return "unknown"
+
+    model = f" (model {detection_model})" if detection_model else ""
+    return f"slidewatch {of('slidewatch')}, detection method '{method}'{model}, xdem {of('xdem')}"
+
+
+def _survey_label(survey: Survey) -> str:
+    return f"survey {survey.id} '{survey.name}' ({_aware(survey.captured_at):%Y-%m-%d %H:%M} UTC)"
+
+
+def _processing(comparison: Comparison) -> dict[str, Any]:
+    stages = (comparison.summary or {}).get("stages", {})
+    kept: dict[str, Any] = {}
+    for stage, result in stages.items():
+        scalars = {
+            k: v
+            for k, v in (result or {}).items()
+            if isinstance(v, int | float | str)
+            and not isinstance(v, bool)
+            and not k.endswith("seconds")
+        }
+        if scalars:
+            kept[stage] = scalars
+    return kept
+
+
+def _product_path(storage: LocalStorage, comparison: Comparison, kind: str) -> Path:
+    product = next((p for p in comparison.products if p.kind == kind), None)
+    if product is None:
+        raise ReportRejected(f"comparison {comparison.id} has no {kind} product")
+    return storage.absolute(product.file.path)
+
+
+def gather(session: Session, storage: LocalStorage, report: Report) -> ReportData:
+    """Everything the report shows; ReportRejected when it cannot be made."""
+    site = session.get(Site, report.site_id)
+    comparison = (
+        session.get(Comparison, report.comparison_id)
+        if report.comparison_id is not None
+        else latest_comparison(session, report.site_id)
+    )
+    if comparison is None or comparison.status != JobState.succeeded:
+        raise ReportRejected(f"site {site.id} has no finished comparison to report on")
+    rows = []
+    for number, detection in enumerate(comparison.detections, start=1):
+        centroid = shape(detection.geometry).centroid
+        rows.append(
+            DetectionRow(
+                number=number,
+                id=detection.id,
+                area_m2=detection.area_m2,
+                volume_loss_m3=detection.volume_loss_m3,
+                volume_gain_m3=detection.volume_gain_m3,
+                max_abs_dh_m=detection.max_abs_dh_m,
+                centroid_lat=centroid.y,
+                centroid_lon=centroid.x,
+                score=detection.score,
+                geometry=detection.geometry,
+            )
+        )
+    notes = []
+    newest = session.scalar(
+        select(Survey)
+        .where(Survey.site_id == site.id)
+        .order_by(Survey.captured_at.desc(), Survey.id.desc())
+        .limit(1)
+    )
+    post = comparison.post_survey
+    if newest is not None and _aware(newest.captured_at) > _aware(post.captured_at):
+        notes.append(
+            f"The site has a newer survey ({_survey_label(newest)}) that no finished "
+            "comparison covers yet: compare it to include it."
+        )
+    data = ReportData(
+        report_id=report.id,
+        site_name=site.name,
+        created_at=_aware(report.created_at) or utcnow(),
+        trigger=report.trigger,
+        comparison_id=comparison.id,
+        pre_survey=_survey_label(comparison.pre_survey),
+        post_survey=_survey_label(post),
+        dh_path=_product_path(storage, comparison, "dh"),
+        dsm_path=_product_path(storage, comparison, "post_coregistered"),
+        detections=rows,
+        change=None,
+        parameters=dict(comparison.parameters or {}),
+        processing=_processing(comparison),
+        model_version=model_version(comparison.method, _detection_model(comparison)),
+        notes=notes,
+    )
+    data.change = _change(session, report, comparison.id, data.totals)
+    return data
+
+
+def _change(
+    session: Session, report: Report, comparison_id: int, totals: dict[str, float]
+) -> Change | None:
+    previous = session.scalar(
+        select(Report)
+        .where(
+            Report.site_id == report.site_id,
+            Report.status == JobState.succeeded,
+            Report.id < report.id,
+        )
+        .order_by(Report.id.desc())
+        .limit(1)
+    )
+    if previous is None or not previous.summary:
+        return Change(None, None, False, 0, 0.0, 0.0, 0.0)
+    before = previous.summary
+    return Change(
+        previous_report_id=previous.id,
+        previous_created_at=_aware(previous.created_at),
+        same_comparison=before.get("comparison_id") == comparison_id,
+        detections=int(totals["detections"] - before.get("detections", 0)),
+        total_area_m2=totals["total_area_m2"] - before.get("total_area_m2", 0.0),
+        total_volume_loss_m3=totals["total_volume_loss_m3"]
+        - before.get("total_volume_loss_m3", 0.0),
+        total_volume_gain_m3=totals["total_volume_gain_m3"]
+        - before.get("total_volume_gain_m3", 0.0),
+    )
+
+
+def store_files(
+    session: Session,
+    storage: LocalStorage,
+    report: Report,
+    comparison_id: int,
+    totals: dict[str, Any],
+) -> None:
+    """Record the built files and the totals; idempotent (a stage stored again updates)."""
+    for kind, name in FILES.items():
+        relative = report_file(report.site_id, report.id, name)
+        stored = record_stored_file(session, storage, relative, MEDIA_TYPES[kind])
+        setattr(report, f"{kind}_file_id", stored.id)
+    report.comparison_id = comparison_id
+    report.summary = {"comparison_id": comparison_id, **totals}

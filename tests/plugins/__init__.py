@@ -1,0 +1,1 @@
+"""Modules that extend slidewatch the way a user's own code would (named in settings)."""

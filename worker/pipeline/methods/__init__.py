@@ -1,0 +1,1 @@
+"""The detection methods shipped with slidewatch, one module each (see detection_methods.py)."""

@@ -1,0 +1,48 @@
+"""The threshold method: every change beyond its per-pixel LoD95, as polygons (the default)."""
+
+from __future__ import annotations
+
+from worker.pipeline.comparison_layout import (
+    DETECTION_INPUTS,
+    DETECTIONS,
+    DETECTIONS_OUTPUT,
+    DH,
+    POST_COREGISTERED,
+    PRE_ALIGNED,
+    SIGNIFICANCE,
+    ComparisonContext,
+    DetectionMethod,
+)
+from worker.pipeline.progress import ProgressFn
+from worker.pipeline.stages import StageSpec
+from worker.pipeline.vectorize import VectorizeOptions, VectorizeResult, vectorize
+
+
+def run_vectorize(context: ComparisonContext, progress: ProgressFn) -> VectorizeResult:
+    return vectorize(
+        context.file(DH),
+        context.file(SIGNIFICANCE),
+        context.file(DETECTIONS),
+        context.detection,
+        context.options.method,
+        progress,
+        pre_path=context.file(PRE_ALIGNED),
+        post_path=context.file(POST_COREGISTERED),
+    )
+
+
+METHOD = DetectionMethod(
+    name="threshold",
+    summary="The LoD method: every change beyond its per-pixel level of detection "
+    "(LoD95 from slope and curvature), larger than the errors' correlation.",
+    stage=StageSpec(
+        name="vectorize",
+        run=run_vectorize,
+        help="significant change into polygons",
+        inputs=DETECTION_INPUTS,
+        outputs=(DETECTIONS_OUTPUT,),
+        weight=0.07,
+    ),
+    options_type=VectorizeOptions,
+    options_key="vectorize",
+)
