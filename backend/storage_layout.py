@@ -21,7 +21,7 @@ use "/" on every system, as they are kept in the database (StoredFile.path). The
     datasets/                                   DATASETS_FOLDER: training dataset
                                                 manifests, put there by an operator
     models/{name}/{run}/                        model_run_folder: one training run, its
-        {file}                                  status.json, checkpoints and weights
+        {file}                                  checkpoints, weights and model card
                                                 (model_run_file)
 
 Deleting a site removes its comparison and survey folders and its uploads folder

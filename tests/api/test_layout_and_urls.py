@@ -24,7 +24,7 @@ def test_storage_layout_keeps_the_paths_already_in_databases() -> None:
     assert layout.site_uploads_folder(3) == "uploads/3"
     assert layout.upload_part_file(3, 11) == "uploads/3/11.part"
     assert layout.report_file(3, 2, "report.pdf") == "reports/3/2/report.pdf"
-    assert layout.model_run_file("slides", "r1", "status.json") == "models/slides/r1/status.json"
+    assert layout.model_run_file("slides", "r1", "slides.pt") == "models/slides/r1/slides.pt"
 
 
 def test_api_url_joins_its_parts_under_the_prefix() -> None:

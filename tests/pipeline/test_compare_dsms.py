@@ -10,8 +10,10 @@ import rasterio
 
 from worker.pipeline import raster_io
 from worker.pipeline.comparison import (
+    ComparisonContext,
     ComparisonOptions,
     compare_dsms,
+    comparison_pipeline,
     run_stage,
     stages_for,
     summarize,
@@ -164,3 +166,18 @@ def test_progress_is_monotonic_and_ends_at_one(tmp_path):
     assert seen[-1] == 1.0
     assert all(b >= a for a, b in itertools.pairwise(seen))
     assert np.all((np.array(seen) >= 0) & (np.array(seen) <= 1))
+
+
+def test_stage_results_are_typed_and_read_back_from_json(slide_run, tmp_path):
+    """What a job stores of each stage (JSON) reads back as the stage's typed result."""
+    work = tmp_path / "work"
+    shutil.copytree(slide_run.result.work_dir, work)
+    context = ComparisonContext(
+        slide_run.paths.pre, slide_run.paths.post, work, ComparisonOptions()
+    )
+    for spec in comparison_pipeline("threshold").stages:
+        result = spec.run(context, lambda _fraction: None)
+        stored = json.loads(json.dumps(result.to_dict()))
+        again = type(result).from_dict({**stored, "written_by_a_newer_version": 1})
+        assert again == result, spec.name
+    assert again.detections == slide_run.result.results["vectorize"]["detections"] == 1

@@ -30,6 +30,7 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string, is_metric_projected, utm_epsg_for_lonlat
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import read_elevation, warp_elevation, write_geotiff
+from worker.pipeline.stages import StageResult
 
 
 @dataclass
@@ -39,7 +40,7 @@ class AlignOptions:
 
 
 @dataclass
-class AlignResult:
+class AlignResult(StageResult):
     crs: str
     shape: tuple[int, int]  # rows, cols
     resolution_m: float

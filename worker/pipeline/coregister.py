@@ -34,9 +34,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rasterio
@@ -48,6 +47,7 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.geo import is_metric_projected
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import MASK_NODATA, read_elevation, warp_elevation, write_geotiff
+from worker.pipeline.stages import StageResult
 
 STABLE, UNSTABLE = 1, 0  # values of the stable-terrain mask file; 255 = nodata in either DSM
 
@@ -74,7 +74,7 @@ class CoregisterOptions:
 
 
 @dataclass
-class CoregisterResult:
+class CoregisterResult(StageResult):
     shift_east_m: float
     shift_north_m: float
     shift_up_m: float
@@ -98,9 +98,6 @@ class CoregisterResult:
     # Correction's quadratic terms, metres per m^2 about the pivot: (x^2, y^2, x y).
     dome_m_per_m2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dome_range_m: float = 0.0  # largest minus smallest of those terms over the grid
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
     def correct_points(self, points: np.ndarray) -> np.ndarray:
         """Move points (N, 3) of the post survey (map x, y, height) the way the

@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -34,6 +33,7 @@ from worker.pipeline.error_model import (
 from worker.pipeline.errors import InputError
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import MASK_NODATA, read_elevation, write_geotiff
+from worker.pipeline.stages import StageResult
 
 NO_CHANGE, LOSS, GAIN = 0, 1, 2
 ERROR_MODELS = ("heteroscedastic", "uniform")
@@ -53,7 +53,7 @@ class DifferenceOptions:
 
 
 @dataclass
-class DifferenceResult:
+class DifferenceResult(StageResult):
     nmad_m: float  # of stable terrain, one number (the uniform model's sigma)
     lod95_m: float  # 1.96 * NMAD: the uniform model's LoD
     lod_m: float  # the median per-pixel LoD applied (the fixed lod_m when given)
@@ -68,9 +68,6 @@ class DifferenceResult:
     significant_gain_pixels: int
     pixel_area_m2: float
     seconds: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def difference(

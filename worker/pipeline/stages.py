@@ -15,11 +15,13 @@ dataclass per pipeline) and a progress callback, and returns a result with `to_d
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Callable
+import typing
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, Self, TypeVar
 
 from worker.pipeline.cog import COG_MEDIA_TYPE, RasterRole
 from worker.pipeline.errors import InputError, PipelineError
@@ -27,7 +29,41 @@ from worker.pipeline.progress import ProgressFn, no_progress
 
 GEOJSON = "application/geo+json"
 GEOTIFF = "image/tiff"
-__all__ = ["COG_MEDIA_TYPE", "GEOJSON", "GEOTIFF", "Output", "Pipeline", "PipelineRun", "StageSpec"]
+__all__ = [
+    "COG_MEDIA_TYPE",
+    "GEOJSON",
+    "GEOTIFF",
+    "Output",
+    "Pipeline",
+    "PipelineRun",
+    "StageResult",
+    "StageSpec",
+]
+
+
+class StageResult:
+    """Base of a stage's typed result (a dataclass): to JSON with `to_dict`, and back with
+    `from_dict` from what a job stored or a stage wrote (keys it does not know are left
+    out, so a result written by a newer version still reads)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Self:
+        hints = typing.get_type_hints(cls)
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        return cls(
+            **{key: _json_value(hints[key], value) for key, value in data.items() if key in names}
+        )
+
+
+def _json_value(hint: Any, value: Any) -> Any:
+    """JSON has lists only: a list read back for a tuple field becomes the tuple again."""
+    kinds = (hint, *typing.get_args(hint))
+    if isinstance(value, list) and any(typing.get_origin(k) is tuple for k in kinds):
+        return tuple(value)
+    return value
 
 
 class StageContext(Protocol):

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ from worker.pipeline.detection_record import write_detections
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.stages import StageResult
 
 METHODS = ("threshold",)
 
@@ -48,7 +49,7 @@ class VectorizeOptions(RegionOptions):
 
 
 @dataclass
-class VectorizeResult:
+class VectorizeResult(StageResult):
     detections: int
     total_area_m2: float
     total_volume_loss_m3: float
@@ -59,9 +60,6 @@ class VectorizeResult:
     method: str
     crs: str  # the metric CRS where areas and volumes were measured
     seconds: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def vectorize(

@@ -1,5 +1,5 @@
 """One entry point for training a detection model from a dataset manifest, shared by
-`slidewatch train` and the platform's training task (worker/tasks_training.py).
+`slidewatch train` and the platform's training job (worker/jobs/training.py).
 
 Model kinds: "slidenet" (ours, dense_training.py) and "patchnet-fixed" /
 "patchnet-loose" (the paper's, paper_training.py). The manifest's test pair and region

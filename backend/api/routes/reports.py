@@ -12,13 +12,13 @@ from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_b
 from backend.api.schemas_monitoring import ReportCreate, ReportOut
 from backend.db.models import Report, StoredFile
 from backend.services.reports import ReportRejected, request_report, shown_status
+from backend.urls import api_url
 
 router = APIRouter(prefix="/sites/{site_id}/reports", tags=["reports"])
-API_PREFIX = "/api/v1"
 
 
 def report_out(report: Report) -> ReportOut:
-    base = f"{API_PREFIX}/sites/{report.site_id}/reports/{report.id}"
+    base = api_url("sites", report.site_id, "reports", report.id)
     return ReportOut(
         id=report.id,
         site_id=report.site_id,

@@ -32,7 +32,7 @@ import json
 import math
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -65,12 +65,13 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string, is_metric_projected, to_wgs84_geojson
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import NODATA
+from worker.pipeline.stages import StageResult
 
 CELL_PX = CORE_PX
 
 
 @dataclass
-class CnnResult:
+class CnnResult(StageResult):
     detections: int
     total_area_m2: float
     total_volume_loss_m3: float
@@ -86,9 +87,6 @@ class CnnResult:
     pixels: int
     seconds: float
     inference_seconds: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def _read_window(src: rasterio.io.DatasetReader, r0: int, c0: int, h: int, w: int):
