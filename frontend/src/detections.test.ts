@@ -59,10 +59,9 @@ describe("detections", () => {
     expect(withInterval(5, undefined, formatVolume)).toBe("5 m³");
   });
 
-  it("says a threshold detection has no model, and escapes text", () => {
+  it("says a detection without a model has none, and escapes text", () => {
     const html = detectionPopupHtml(1, { ...props, method: "<b>threshold</b>", model_version: null }, "UTC");
     expect(html).toContain("&#60;b&#62;threshold");
-    expect(html).toContain("unknown");
     const plain = detectionPopupHtml(1, { ...props, method: "threshold", model_version: null }, "UTC");
     expect(plain).toContain("none (the method runs no model)");
   });
