@@ -5,6 +5,7 @@ Standard library only, so anyone can run it:
 
     python3 scripts/import_graph.py            # packages (backend.api, worker.pipeline ...)
     python3 scripts/import_graph.py --layers   # the layers of docs/architecture.md + rules
+    python3 scripts/import_graph.py --modules  # cycles between single modules
 
 A package is a directory with an __init__.py three levels deep at most; every import, also
 one inside a function or under TYPE_CHECKING, counts. `--layers` maps every module to its
@@ -209,13 +210,35 @@ def layer_graph(root: Path) -> tuple[dict[str, set[str]], list[str]]:
     return graph, sorted(broken.values())
 
 
+def module_graph(root: Path) -> dict[str, dict[str, list[str]]]:
+    """{module: {imported module of the project: ["file:line", ...]}}."""
+    modules = {
+        module_name(root, path): path for top in ROOTS for path in (root / top).rglob("*.py")
+    }
+    graph: dict[str, dict[str, list[str]]] = defaultdict(lambda: defaultdict(list))
+    for module, path in modules.items():
+        for name, line in imported_modules(path, module):
+            inside = [m for m in modules if name == m or name.startswith(m + ".")]
+            target = max(inside, key=len, default=None)
+            if target is not None and target != module:
+                graph[module][target].append(f"{path.relative_to(root)}:{line}")
+    return graph
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path(__file__).resolve().parents[1])
     parser.add_argument("--where", action="store_true", help="list the importing lines")
     parser.add_argument("--layers", action="store_true", help="layers and their rules")
+    parser.add_argument("--modules", action="store_true", help="cycles between modules")
     args = parser.parse_args()
     sys.setrecursionlimit(10000)
+    if args.modules:
+        found = cycles(module_graph(args.root))
+        print(f"module cycles: {len(found)}")
+        for component in found:
+            print("  " + " <-> ".join(component))
+        return 1 if found else 0
     if args.layers:
         layers, broken = layer_graph(args.root)
         for source in sorted(layers):

@@ -42,6 +42,13 @@ def test_no_cycles_between_top_level_packages() -> None:
     assert layered == [], result.stdout
 
 
+def test_no_module_imports_itself_back_through_others() -> None:
+    """Not even inside one package, nor through a function-local or type-only import."""
+    result = run_graph("--modules")
+    assert result.stdout.startswith("module cycles: 0"), result.stdout
+    assert result.returncode == 0
+
+
 def test_the_rules_catch_an_import_against_them(tmp_path: Path) -> None:
     """The checker itself: a library module that imports the job layer is reported."""
     for package in ("backend", "worker", "worker/pipeline", "worker/jobs"):

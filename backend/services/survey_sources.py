@@ -38,8 +38,8 @@ from backend.storage import LocalStorage, SavedFile
 from backend.storage_layout import survey_files_folder
 from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
 from worker.pipeline.errors import InputError
-from worker.pipeline.ingest.flight_log import read_flight_log
 from worker.pipeline.ingest.images import read_image_metadata
+from worker.pipeline.ingest.read_log import read_flight_log
 from worker.pipeline.ingest.video import probe_video
 from worker.pipeline.reconstruction import ReconstructionOptions
 

@@ -25,7 +25,20 @@ from rasterio.warp import Resampling, reproject
 from rio_cogeo.cogeo import cog_validate
 
 from worker.commands.reconstruct import reconstruct
-from worker.pipeline.reconstruction import ReconstructionOptions, run_stage
+from worker.pipeline.reconstruction import (
+    STAGES,
+    ReconstructionInputs,
+    ReconstructionOptions,
+    run_stage,
+)
+from worker.pipeline.reconstruction_results import (
+    DsmStageResult,
+    FramesResult,
+    GeoreferenceResult,
+    IngestResult,
+    ReconstructResult,
+    plain,
+)
 from worker.pipeline.trajectory import read_trajectory_csv
 
 
@@ -100,9 +113,12 @@ def test_cli_writes_every_product(slam_run):
         "dsm.png",
         "points.ply",
         "trajectory.csv",
+        "trajectory.geojson",
         "report.json",
     ):
         assert (out / name).is_file(), name
+    flight_path = json.loads((out / "trajectory.geojson").read_text())
+    assert flight_path["geometry"]["type"] == "LineString"
     assert cog_validate(str(out / "dsm.tif"), quiet=True)[0]
     with rasterio.open(out / "dsm.tif") as src:
         assert src.crs.to_epsg() == 32654 and src.nodata == -9999
@@ -112,6 +128,31 @@ def test_cli_writes_every_product(slam_run):
     assert report["residuals_m"][0]["rms_up"] < 1.0
     assert report["real_time_factor"] > 0
     assert read_trajectory_csv(out / "trajectory.csv").crs == "EPSG:32654"
+
+
+RESULT_TYPES = {
+    "ingest": IngestResult,
+    "frames": FramesResult,
+    "reconstruct": ReconstructResult,
+    "georeference": GeoreferenceResult,
+    "dsm": DsmStageResult,
+}
+
+
+def assert_stage_files_read_back(out: Path) -> None:
+    """Every <stage>.json reads back typed and writes the same JSON, key for key."""
+    assert set(RESULT_TYPES) == set(STAGES)
+    for stage, kind in RESULT_TYPES.items():
+        stored = json.loads((out / f"{stage}.json").read_text())
+        written = json.loads(json.dumps(plain(kind.from_dict(stored).to_dict())))
+        assert written == stored, stage
+        assert list(written) == list(stored), stage
+
+
+def test_stage_results_read_back_typed(slam_run):
+    out, _ = slam_run
+    assert_stage_files_read_back(out)
+    assert IngestResult.from_dict(json.loads((out / "ingest.json").read_text())).video
 
 
 def test_dsm_matches_the_truth_beyond_the_gnss_bias(slam_run, survey):
@@ -145,7 +186,8 @@ def test_stages_are_idempotent(slam_run):
     out, _ = slam_run
     with rasterio.open(out / "dsm.tif") as src:
         before = src.read(1)
-    run_stage("dsm", out, ReconstructionOptions())
+    result = run_stage("dsm", out, ReconstructionOptions())
+    assert result == json.loads((out / "dsm.json").read_text())
     with rasterio.open(out / "dsm.tif") as src:
         np.testing.assert_array_equal(src.read(1), before)
     assert not list(out.glob(".*.part*"))
@@ -167,6 +209,17 @@ def test_sfm_reference_method(survey, tmp_path):
     rec = json.loads((tmp_path / "reconstruct.json").read_text())
     assert rec["method"] == "sfm" and rec["sfm"]["registered"] >= 8
     assert (tmp_path / "dsm.tif").is_file()
+    assert_stage_files_read_back(tmp_path)
+
+
+def test_a_time_offset_given_by_the_user_is_kept(survey, tmp_path):
+    flight, _ = survey
+    inputs = ReconstructionInputs(
+        video=str(flight / "DJI_0001.MP4"), log=str(flight / "flight-airdata.csv")
+    )
+    result = run_stage("ingest", tmp_path, ReconstructionOptions(time_offset_s=0.25), inputs)
+    prior = result["time_offset_prior"]
+    assert (prior["offset_s"], prior["prior_source"], prior["method"]) == (0.25, "user", "user")
 
 
 # -- unusable input through the CLI ------------------------------------------------------

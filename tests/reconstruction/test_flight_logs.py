@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.ingest.flight_log import read_flight_log
+from worker.pipeline.ingest.read_log import read_flight_log
 
 
 def write(tmp_path: Path, name: str, text: str, encoding: str = "utf-8") -> Path:
@@ -238,7 +238,10 @@ def test_srt_without_any_fix_fails(tmp_path):
 
 def test_srt_bad_number_names_the_line(tmp_path):
     text = srt(mavic3_block(1), mavic3_block(2).replace("latitude: 35", "latitude: 3x5"))
-    with pytest.raises(InputError, match=r"bad\.srt, line 11: latitude .3x5"):
+    # One of two blocks left is too little to trust: refused, saying how much was readable.
+    with pytest.raises(
+        InputError, match=r"bad\.srt: only 1 of 2 blocks readable; line 11: latitude .3x5"
+    ):
         read_flight_log(write(tmp_path, "bad.srt", text))
 
 
@@ -356,8 +359,12 @@ def test_generic_seconds_and_bad_value_line(tmp_path):
     log = read_flight_log(write(tmp_path, "g.csv", good))
     assert log.datetime is None and log.t[-1] == 0.5
     bad = good + "1.0,47.0x,8.0,502\n"
-    with pytest.raises(InputError, match=r"g2\.csv, line 4: lat '47\.0x' is not a number"):
-        read_flight_log(write(tmp_path, "g2.csv", bad))
+    log = read_flight_log(write(tmp_path, "g2.csv", bad))  # 2 of 3 rows: kept, warned
+    assert len(log) == 2
+    assert any("line 4: lat '47.0x' is not a number" in w for w in log.warnings)
+    worse = bad + "1.5,x,8.0,502\n2.0,47.0,8.0,5y\n"  # 2 of 5: under half, refused
+    with pytest.raises(InputError, match=r"g3\.csv: only 2 of 5 rows readable; line 4: lat"):
+        read_flight_log(write(tmp_path, "g3.csv", worse))
 
 
 def test_generic_without_time_column(tmp_path):

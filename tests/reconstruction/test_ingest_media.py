@@ -13,9 +13,17 @@ import piexif
 import pytest
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.ingest.camera import CameraOverride, lookup_camera, resolve_intrinsics
-from worker.pipeline.ingest.flight_log import build_flight_log, read_flight_log
+from worker.pipeline.ingest.camera import (
+    SENSOR_FORMATS,
+    CameraOverride,
+    Intrinsics,
+    focal_plane_sensor_width_mm,
+    lookup_camera,
+    resolve_intrinsics,
+)
+from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.ingest.images import read_image_metadata, read_image_set
+from worker.pipeline.ingest.read_log import read_flight_log
 from worker.pipeline.ingest.time_offset import (
     check_overlap,
     estimate_time_offset,
@@ -48,18 +56,28 @@ def make_jpeg(
     model: str = "FC6310",
     xmp: str | None = None,
     size: tuple[int, int] = (96, 64),
+    make: str = "DJI",
+    camera_exif: dict[int, object] | None = None,
 ) -> Path:
+    """A small JPEG with EXIF; `camera_exif` replaces the lens tags (FocalLength 8.8 mm,
+    FocalLengthIn35mmFilm 24) of a DJI camera."""
     rng = np.random.default_rng(0)
     image = (rng.random((size[1], size[0], 3)) * 255).astype(np.uint8)
     ok, jpeg = cv2.imencode(".jpg", image)
     assert ok
     exif = {
-        "0th": {piexif.ImageIFD.Make: b"DJI", piexif.ImageIFD.Model: model.encode()},
+        "0th": {piexif.ImageIFD.Make: make.encode(), piexif.ImageIFD.Model: model.encode()},
         "Exif": {
             piexif.ExifIFD.DateTimeOriginal: when.encode(),
             piexif.ExifIFD.SubSecTimeOriginal: subsec.encode(),
-            piexif.ExifIFD.FocalLength: (880, 100),
-            piexif.ExifIFD.FocalLengthIn35mmFilm: 24,
+            **(
+                camera_exif
+                if camera_exif is not None
+                else {
+                    piexif.ExifIFD.FocalLength: (880, 100),
+                    piexif.ExifIFD.FocalLengthIn35mmFilm: 24,
+                }
+            ),
         },
         "GPS": {},
     }
@@ -194,6 +212,125 @@ def test_intrinsics_from_table_exif_override_and_default():
         resolve_intrinsics(640, 360, override=CameraOverride(model="bogus-cam"))
     for model in ("FC6310R", "L1D-20c", "L2D-20c", "FC3582", "FC8482", "FC3411", "ZH20"):
         assert lookup_camera(model) is not None, model
+
+
+def _intrinsics_of(path: Path) -> Intrinsics:
+    """What ingest does with a photo: its EXIF into `resolve_intrinsics`."""
+    meta = read_image_metadata(path)
+    return resolve_intrinsics(
+        meta.width,
+        meta.height,
+        exif_model=meta.model,
+        exif_focal_mm=meta.focal_mm,
+        focal_35mm=meta.focal_35mm,
+        exif_sensor_width_mm=meta.sensor_width_mm,
+    )
+
+
+FOCAL = piexif.ExifIFD.FocalLength
+FOCAL_35 = piexif.ExifIFD.FocalLengthIn35mmFilm
+
+
+def test_consumer_camera_by_model_and_focal_length(tmp_path):
+    """Issue 17: a compact with GPS writes Model and FocalLength, no 35 mm equivalent."""
+    path = make_jpeg(
+        tmp_path / "IMG_0001.JPG",
+        make="Canon",
+        model="Canon PowerShot SX260 HS",
+        size=(400, 300),
+        camera_exif={FOCAL: (45, 10)},
+    )
+    intr = _intrinsics_of(path)
+    assert intr.fx == pytest.approx(4.5 / 6.17 * 400, rel=0.01)
+    assert intr.fy == intr.fx and not intr.focal_guess and not intr.warnings
+    assert intr.source == (
+        'table: Canon PowerShot SX260 HS: 1/2.3" sensor 6.17 mm wide from the camera '
+        "table, focal 4.5 mm from EXIF: fx = 292 px"
+    )
+    # The same camera zoomed in: the focal length follows EXIF, the sensor the table.
+    zoomed = resolve_intrinsics(
+        4000, 3000, exif_model="Canon PowerShot SX260 HS", exif_focal_mm=9.0
+    )
+    assert zoomed.fx == pytest.approx(9.0 / 6.17 * 4000, rel=0.01)
+    assert lookup_camera("DSC-RX100M3").sensor_width_mm == SENSOR_FORMATS['1"']
+
+
+def test_only_the_35mm_equivalent(tmp_path):
+    path = make_jpeg(
+        tmp_path / "a.jpg",
+        make="Acme",
+        model="Acme Cam 1",
+        size=(400, 300),
+        camera_exif={FOCAL_35: 28},
+    )
+    intr = _intrinsics_of(path)
+    assert intr.fx == pytest.approx(28 / 36 * 400, rel=0.01) and not intr.focal_guess
+    assert intr.source.startswith("35 mm equivalent focal length 28 mm of Acme Cam 1")
+    assert "fx = 28 / 36 * 400 = 311 px" in intr.source
+
+
+def test_focal_plane_resolution(tmp_path):
+    """A camera not in the table that writes its own pixel pitch: 4000 px over a
+    6.17 mm sensor, in pixels per inch; the JPEG was resized to 400 px afterwards."""
+    ppi = 4000 / 6.17 * 25.4
+    path = make_jpeg(
+        tmp_path / "a.jpg",
+        make="Acme",
+        model="Acme Cam 2",
+        size=(400, 300),
+        camera_exif={
+            FOCAL: (50, 10),
+            piexif.ExifIFD.FocalPlaneXResolution: (round(ppi * 1000), 1000),
+            piexif.ExifIFD.FocalPlaneResolutionUnit: 2,
+            piexif.ExifIFD.PixelXDimension: 4000,
+        },
+    )
+    meta = read_image_metadata(path)
+    assert meta.sensor_width_mm == pytest.approx(6.17, rel=1e-4)
+    intr = _intrinsics_of(path)
+    assert intr.fx == pytest.approx(5.0 / 6.17 * 400, rel=0.01) and not intr.focal_guess
+    assert intr.source.startswith("focal plane: Acme Cam 2: sensor 6.17 mm wide from EXIF")
+    # Centimetres, no PixelXDimension (the JPEG's own width is meant).
+    assert focal_plane_sensor_width_mm(400 / 0.617, 3, 400) == pytest.approx(6.17)
+    # A value implying an impossible sensor is ignored, with a warning.
+    odd = resolve_intrinsics(
+        400, 300, exif_model="Acme Cam 2", exif_focal_mm=5.0, exif_sensor_width_mm=0.3
+    )
+    assert odd.focal_guess and "0.3 mm wide sensor" in odd.warnings[0]
+
+
+def test_unknown_camera_is_a_guess_that_sfm_refines(tmp_path):
+    path = make_jpeg(
+        tmp_path / "a.jpg",
+        make="Acme",
+        model="Mystery 9",
+        size=(400, 300),
+        camera_exif={FOCAL: (45, 10)},
+    )
+    intr = _intrinsics_of(path)
+    assert intr.focal_guess and intr.source.startswith("guess: ")
+    assert intr.fx == pytest.approx(8.8 / 13.2 * 400, rel=0.01)
+    (warning,) = intr.warnings
+    assert "'Mystery 9' is not in the camera table" in warning
+    assert "focal length (4.5 mm)" in warning and "no EXIF camera model" not in warning
+    bare = resolve_intrinsics(400, 300)
+    assert bare.focal_guess and "no EXIF camera model, no focal length" in bare.warnings[0]
+    # The flag travels through ingest.json and the stills' rescaling to SfM.
+    again = Intrinsics.from_dict(intr.to_dict()).scaled(200, 150)
+    assert again.focal_guess and again.fx == pytest.approx(intr.fx / 2)
+
+
+def test_dji_camera_from_the_table(tmp_path):
+    path = make_jpeg(tmp_path / "DJI_0001.JPG", model="FC6310", size=(400, 300))
+    intr = _intrinsics_of(path)
+    assert intr.fx == pytest.approx(8.8 / 13.2 * 400, rel=0.01) and not intr.focal_guess
+    assert intr.source == (
+        'table: Phantom 4 Pro / Pro V2: 1" sensor 13.2 mm wide from the camera table, '
+        "focal 8.8 mm from EXIF: fx = 267 px"
+    )
+    mavic3 = resolve_intrinsics(5280, 3956, exif_model="M3E")
+    assert mavic3.fx == pytest.approx(12.29 / 17.3 * 5280, rel=0.01)
+    assert "focal 12.29 mm from the camera table (none in EXIF)" in mavic3.source
 
 
 # -- video --------------------------------------------------------------------------------

@@ -21,12 +21,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from worker.pipeline.align import AlignOptions
+from worker.pipeline.coregister import CoregisterOptions
+from worker.pipeline.difference import DifferenceOptions
 from worker.pipeline.stages import GEOJSON, Output, StageSpec
-
-if TYPE_CHECKING:  # the options hold every method's; methods import this module
-    from worker.pipeline.comparison import ComparisonOptions
 
 PRE_ALIGNED = "pre_aligned.tif"
 POST_ALIGNED = "post_aligned.tif"
@@ -43,6 +43,17 @@ DETECTION_INPUTS = (PRE_ALIGNED, POST_COREGISTERED, DH, SIGNIFICANCE)
 DETECTIONS_OUTPUT = Output(DETECTIONS, product="detections", media_type=GEOJSON)
 
 
+class StageOptions(Protocol):
+    """What the stages read of a comparison's options (comparison.ComparisonOptions, which
+    this module cannot import: it imports the methods, and the methods import this)."""
+
+    align: AlignOptions
+    coregister: CoregisterOptions
+    difference: DifferenceOptions
+    method: str
+    detection: Any  # the method's own options (its `options_type`)
+
+
 @dataclass
 class ComparisonContext:
     """Everything a comparison stage reads: the two DSMs, the work folder, the options."""
@@ -50,7 +61,7 @@ class ComparisonContext:
     pre_path: Path
     post_path: Path
     work_dir: Path
-    options: ComparisonOptions
+    options: StageOptions
 
     def file(self, name: str) -> Path:
         return Path(self.work_dir) / name

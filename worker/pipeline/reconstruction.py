@@ -6,8 +6,9 @@ The stages are declared once, as data (`RECONSTRUCTION_PIPELINE`, see stages.py)
 CLI, the job layer and the page's stage help come from there. Each stage is a function
 over `work_dir` that reads the inputs and what earlier stages wrote there and
 (re)writes its own outputs atomically, so each can run as its own Celery task, be
-retried, and be run again with the same result. Every stage returns a
-JSON-friendly dict, also written as `<stage>.json`. Layout of `work_dir`:
+retried, and be run again with the same result. Every stage returns a typed result
+(reconstruction_results.py), also written as `<stage>.json`, and later stages read those
+files back typed. Layout of `work_dir`:
 
     ingest.json              ingest        inputs, log summary, video or image-set
                                            summary, intrinsics, prior time offset
@@ -48,7 +49,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -68,8 +69,9 @@ from worker.pipeline.georef import offset_residual_fn, survey_epsg
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
 from worker.pipeline.ingest.arriving import Arrival
 from worker.pipeline.ingest.camera import CameraOverride, Intrinsics, resolve_intrinsics
-from worker.pipeline.ingest.flight_log import FlightLog, read_flight_log
+from worker.pipeline.ingest.flight_log import FlightLog
 from worker.pipeline.ingest.images import read_image_set
+from worker.pipeline.ingest.read_log import read_flight_log
 from worker.pipeline.ingest.time_offset import (
     OffsetMethod,
     PriorSource,
@@ -87,6 +89,15 @@ from worker.pipeline.pointcloud import (
     write_ply,
 )
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.reconstruction_results import (
+    DsmStageResult,
+    FramesResult,
+    GeoreferenceResult,
+    IngestResult,
+    ReconstructionStageResult,
+    ReconstructResult,
+    plain,
+)
 from worker.pipeline.sfm import SfmOptions, run_sfm
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
@@ -178,7 +189,7 @@ def _from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 
 # -- helpers ---------------------------------------------------------------------------
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    write_text_atomic(path, json.dumps(_plain(data), indent=2, allow_nan=False))
+    write_text_atomic(path, json.dumps(plain(data), indent=2, allow_nan=False))
 
 
 def _read_json(work_dir: Path, stage: str) -> dict[str, Any]:
@@ -188,21 +199,25 @@ def _read_json(work_dir: Path, stage: str) -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def _plain(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating | float):
-        value = float(obj)
-        return value if np.isfinite(value) else None
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
+ResultT = TypeVar("ResultT", bound=ReconstructionStageResult)
+
+# The stage that writes each result type's file.
+_RESULT_STAGE: dict[type[ReconstructionStageResult], str] = {
+    IngestResult: "ingest",
+    FramesResult: "frames",
+    ReconstructResult: "reconstruct",
+    GeoreferenceResult: "georeference",
+    DsmStageResult: "dsm",
+}
+
+
+def _read_result(work_dir: Path, kind: type[ResultT]) -> ResultT:
+    """An earlier stage's result, read back from its `<stage>.json`."""
+    return kind.from_dict(_read_json(work_dir, _RESULT_STAGE[kind]))
+
+
+def _write_result(work_dir: Path, result: ReconstructionStageResult) -> None:
+    _write_json(work_dir / f"{_RESULT_STAGE[type(result)]}.json", result.to_dict())
 
 
 def _method(inputs: dict[str, Any], options: ReconstructionOptions) -> str:
@@ -218,11 +233,15 @@ def _method(inputs: dict[str, Any], options: ReconstructionOptions) -> str:
     return "slam" if options.method == "auto" else options.method
 
 
-def _load_log(ingest: dict[str, Any], options: ReconstructionOptions) -> FlightLog:
-    inputs = ingest["inputs"]
-    if inputs.get("images"):
-        return read_image_set(inputs["images"]).log
-    return read_flight_log(inputs["log"], angle_unit=options.angle_unit)
+def _load_log(ingest: IngestResult, options: ReconstructionOptions) -> FlightLog:
+    if ingest.image_set:
+        return read_image_set(ingest.image_set).log
+    # The video's duration picks the same recording of a joined SRT as ingest did.
+    duration = (ingest.video or {}).get("duration_s")
+    log = ingest.inputs["log"]
+    if log is None:
+        raise InputError("ingest.json names no flight log")
+    return read_flight_log(log, angle_unit=options.angle_unit, video_duration_s=duration)
 
 
 # -- stages ------------------------------------------------------------------------------
@@ -231,7 +250,7 @@ def ingest(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
-) -> dict[str, Any]:
+) -> IngestResult:
     """Read and check every input; choose the intrinsics; the prior time offset."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
@@ -255,6 +274,7 @@ def ingest(
             exif_model=first.model,
             exif_focal_mm=first.focal_mm,
             focal_35mm=first.focal_35mm,
+            exif_sensor_width_mm=first.sensor_width_mm,
         )
         out["images"] = image_set.to_dict()
         out["intrinsics_source"] = intr.to_dict()
@@ -266,7 +286,9 @@ def ingest(
     else:
         video = probe_video(given["video"], inputs.video_arrival())
         progress(0.3)
-        log = read_flight_log(given["log"], angle_unit=options.angle_unit)
+        log = read_flight_log(
+            given["log"], angle_unit=options.angle_unit, video_duration_s=video.duration_s
+        )
         focal35 = log.meta.get("focal_len_35mm")
         intr = resolve_intrinsics(
             video.width, video.height, override=options.camera, focal_35mm=focal35
@@ -277,8 +299,8 @@ def ingest(
         out["intrinsics"] = processing.to_dict()
         prior = prior_offset(log, video.duration_s, video.creation_time)
         if options.time_offset_s is not None:
-            given = options.time_offset_s
-            prior = TimeOffset(given, given, PriorSource.user, OffsetMethod.user)
+            offset = options.time_offset_s
+            prior = TimeOffset(offset, offset, PriorSource.user, OffsetMethod.user)
         if prior.prior_source != PriorSource.log_start and video.duration_s:
             name = Path(given["video"]).name
             if prior.prior_source == PriorSource.creation_time:
@@ -303,9 +325,10 @@ def ingest(
     out["warnings"] += log.warnings + intr.warnings
     out["crs"] = f"EPSG:{survey_epsg(log)}"
     out["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(work_dir / "ingest.json", out)
+    result = IngestResult(**out)
+    _write_result(work_dir, result)
     progress(1.0)
-    return _plain(out)
+    return result
 
 
 def frames(
@@ -313,18 +336,18 @@ def frames(
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
     inputs: ReconstructionInputs | None = None,
-) -> dict[str, Any]:
+) -> FramesResult:
     """Decode and filter the video (the one in `inputs` when given, else ingest's); estimate
     the time offset from image motion."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
-    ing = _read_json(work_dir, "ingest")
-    method = ing["method"]
+    ing = _read_result(work_dir, IngestResult)
+    method = ing.method
     out: dict[str, Any] = {"method": method}
-    if ing["inputs"].get("images"):
-        out["time_offset"] = ing["time_offset_prior"]
-        image_set = read_image_set(ing["inputs"]["images"])
+    if ing.image_set:
+        out["time_offset"] = ing.time_offset_prior
+        image_set = read_image_set(ing.image_set)
         width = image_set.images[0].width
         if width > options.sfm.max_width:
             stills = _downscale_images(
@@ -336,7 +359,9 @@ def frames(
         else:
             out["note"] = "image set: the images are used as they are"
     else:
-        video = inputs.paths()["video"] if inputs and inputs.video else ing["inputs"]["video"]
+        video = inputs.paths()["video"] if inputs and inputs.video else ing.inputs["video"]
+        if video is None:
+            raise InputError("ingest.json names no video")
         arrival = inputs.video_arrival() if inputs and inputs.video else None
         weight = 0.6 if method == "sfm" else 1.0
         slam = options.slam
@@ -351,7 +376,7 @@ def frames(
             arrival=arrival,
         )
         out["frames"] = result.to_dict()
-        prior = TimeOffset(**{**ing["time_offset_prior"], "warnings": []})
+        prior = TimeOffset(**{**ing.time_offset_prior, "warnings": []})
         if prior.method == OffsetMethod.user:
             offset = prior
         else:
@@ -379,9 +404,10 @@ def frames(
             out["stills"] = stills.to_dict()
             out["still_times"] = stills.times
     out["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(work_dir / "frames.json", out)
+    result = FramesResult(**out)
+    _write_result(work_dir, result)
     progress(1.0)
-    return _plain(out)
+    return result
 
 
 def _downscale_images(paths: list[str], out_dir: Path, max_width: int) -> dict[str, Any]:
@@ -409,15 +435,15 @@ def reconstruct(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
-) -> dict[str, Any]:
+) -> ReconstructResult:
     """The map in the reconstruction's own frame (slam), or in the GNSS frame (sfm)."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
-    ing = _read_json(work_dir, "ingest")
-    fr = _read_json(work_dir, "frames")
-    method = ing["method"]
-    intr = Intrinsics.from_dict(ing["intrinsics"])
+    ing = _read_result(work_dir, IngestResult)
+    fr = _read_result(work_dir, FramesResult)
+    method = ing.method
+    intr = Intrinsics.from_dict(ing.intrinsics)
     out: dict[str, Any] = {"method": method}
     if method == "slam":
         scan = read_frame_scan(work_dir / FRAMES_DIR / "frames.csv")
@@ -444,17 +470,19 @@ def reconstruct(
         duration = float(scan.t[-1] - scan.t[0]) if scan.t.size > 1 else 0.0
     else:
         log = _load_log(ing, options)
-        offset = float(fr["time_offset"]["offset_s"])
-        if ing["inputs"].get("images") and "stills" not in fr:
-            image_set = read_image_set(ing["inputs"]["images"])
+        offset = float(fr.time_offset["offset_s"])
+        if ing.image_set and fr.stills is None:
+            image_set = read_image_set(ing.image_set)
             paths = [m.path for m in image_set.images]
             times = image_set.image_times.tolist()
             still_intr = intr
         else:
             paths = sorted(str(p) for p in (work_dir / STILLS_DIR).glob("*.jpg"))
-            times = fr["still_times"]
-            stills = fr["stills"]
-            source = Intrinsics.from_dict(ing["intrinsics_source"])
+            if fr.stills is None or fr.still_times is None:
+                raise InputError("the frames stage wrote no stills: run it again with sfm")
+            times = fr.still_times
+            stills = fr.stills
+            source = Intrinsics.from_dict(ing.intrinsics_source)
             still_intr = source.scaled(stills["width"], stills["height"])
         sparse, sfm_report = run_sfm(
             paths, times, log, offset, still_intr, work_dir / SFM_DIR, options.sfm, progress
@@ -481,25 +509,26 @@ def reconstruct(
             "the reconstruction failed: too few frames could be tracked (texture-poor, "
             "blurred or too fast a video?)"
         )
-    _write_json(work_dir / "reconstruct.json", out)
+    result = ReconstructResult(**out)
+    _write_result(work_dir, result)
     progress(1.0)
-    return _plain(out)
+    return result
 
 
 def georeference(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
-) -> dict[str, Any]:
+) -> GeoreferenceResult:
     """Fuse the trajectory with the log: the map and trajectory in the UTM zone."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
-    ing = _read_json(work_dir, "ingest")
-    fr = _read_json(work_dir, "frames")
+    ing = _read_result(work_dir, IngestResult)
+    fr = _read_result(work_dir, FramesResult)
     sparse = SparseMap.load(work_dir / RECON_MAP)
     log = _load_log(ing, options)
-    offset = TimeOffset(**{**fr["time_offset"], "warnings": list(fr["time_offset"]["warnings"])})
+    offset = TimeOffset(**{**fr.time_offset, "warnings": list(fr.time_offset["warnings"])})
     out: dict[str, Any] = {}
     # The trajectory fit is the finest estimate (measured: within 10 ms where image
     # motion was 15-90 ms off); SRT clocks and user offsets are kept as they are.
@@ -511,17 +540,18 @@ def georeference(
         offset = refine_time_offset(offset, traj.t, offset_residual_fn(traj, log))
     out["time_offset"] = offset.to_dict()
     progress(0.2)
-    result = georeference_map(sparse, log, offset.offset_s, options.georef)
+    fit = georeference_map(sparse, log, offset.offset_s, options.georef)
     sparse.save(work_dir / GEOREF_MAP)
     traj = sparse.trajectory()
-    traj.crs = result.crs
+    traj.crs = fit.crs
     write_trajectory_csv(work_dir / TRAJECTORY, traj)
     write_text_atomic(work_dir / TRAJECTORY_GEOJSON, json.dumps(trajectory_geojson(traj)))
-    out.update(result.to_dict())
+    out.update(fit.to_dict())
     out["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(work_dir / "georeference.json", out)
+    result = GeoreferenceResult(**out)
+    _write_result(work_dir, result)
     progress(1.0)
-    return _plain(out)
+    return result
 
 
 def _snap_125(value: float) -> float:
@@ -535,14 +565,14 @@ def dsm(
     work_dir: Path,
     options: ReconstructionOptions | None = None,
     progress: ProgressFn = no_progress,
-) -> dict[str, Any]:
+) -> DsmStageResult:
     """Clean the cloud, write points.ply, grid and fill the DSM, write report.json."""
     start = time.perf_counter()
     options = options or ReconstructionOptions()
     work_dir = Path(work_dir)
-    geo = _read_json(work_dir, "georeference")
+    geo = _read_result(work_dir, GeoreferenceResult)
     sparse = SparseMap.load(work_dir / GEOREF_MAP)
-    crs = geo["crs"]
+    crs = geo.crs
     pts_sparse = sparse.point_xyz
     n_dense = len(sparse.dense_xyz)
     out: dict[str, Any] = {"sparse_points": len(pts_sparse), "dense_points": n_dense}
@@ -578,15 +608,16 @@ def dsm(
     # release the GIL); neither changes `points`.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ply") as pool:
         ply = pool.submit(write_ply, work_dir / POINTS, points, comment=f"crs {crs}")
-        result = export_dsm(points, crs, work_dir, dsm_options, name="dsm")
+        raster = export_dsm(points, crs, work_dir, dsm_options, name="dsm")
         ply.result()
-    out["dsm"] = result.to_dict()
+    out["dsm"] = raster.to_dict()
     out["points"] = len(points)
     out["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(work_dir / "dsm.json", out)
+    result = DsmStageResult(**out)
+    _write_result(work_dir, result)
     write_report(work_dir)
     progress(1.0)
-    return _plain(out)
+    return result
 
 
 def _ground_sampling_distance(sparse: SparseMap) -> float:
@@ -634,7 +665,7 @@ class ReconstructionContext:
     inputs: ReconstructionInputs | None = None
 
 
-def _ingest_stage(context: ReconstructionContext, progress: ProgressFn) -> dict[str, Any]:
+def _ingest_stage(context: ReconstructionContext, progress: ProgressFn) -> IngestResult:
     if context.inputs is None:
         raise InputError("the ingest stage needs the inputs")
     return ingest(context.inputs, context.work_dir, context.options, progress)

@@ -4,7 +4,8 @@ As the paper ran OpenDroneMap on frames taken at 3 fps at a higher resolution, t
 method takes still frames (or an image set) and runs COLMAP's pipeline on 2 cores:
 
 1. SIFT on the CPU (`first_octave=0`: no upsampling, ~9x faster than COLMAP's default
-   on 640 px frames, and `max_features`), one pinhole camera with the known intrinsics;
+   on 640 px frames, and `max_features`), one pinhole camera with the known intrinsics
+   (a simple pinhole, one focal length, when they are a guess);
 2. GNSS positions as pose priors in the database (local metres around the survey's
    centre, sigmas `prior_sigma_h_m`/`prior_sigma_v_m`);
 3. sequential matching (`sequential_overlap` neighbours) plus spatial matching by the
@@ -12,7 +13,11 @@ method takes still frames (or an image set) and runs COLMAP's pipeline on 2 core
    Exif data");
 4. incremental mapping with the priors (`use_prior_position`, robust loss), the initial
    pair at >= `init_min_tri_angle` degrees (the default 16 fails on video frames), the
-   focal length fixed (freeing it moved it by 16 % in the notes' tests);
+   focal length fixed (freeing it moved it by 16 % in the notes' tests) unless the
+   intrinsics are a guess (`Intrinsics.focal_guess`: no camera identified), when bundle
+   adjustment refines it and the refined camera is used from then on (on a simulated
+   survey at two heights a 23 % wrong guess came to 8 %; nadir images at one height
+   hardly constrain it, as focal length and depth trade off);
 5. dense points: OpenCV SGBM on pairs of registered images (`worker.pipeline.slam.densify`,
    at `dense_width` pixels), because COLMAP's patch-match stereo needs CUDA.
 
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -89,8 +94,13 @@ def run_sfm(
 
     t0 = time.perf_counter()
     reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    reader.camera_params = f"{intrinsics.fx},{intrinsics.fy},{intrinsics.cx},{intrinsics.cy}"
+    if intrinsics.focal_guess:
+        # One focal length to refine, not fx and fy apart: a guess has no aspect to keep.
+        reader.camera_model = "SIMPLE_PINHOLE"
+        reader.camera_params = f"{intrinsics.fx},{intrinsics.cx},{intrinsics.cy}"
+    else:
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = f"{intrinsics.fx},{intrinsics.fy},{intrinsics.cx},{intrinsics.cy}"
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = options.threads
     extraction.use_gpu = False
@@ -166,21 +176,8 @@ def run_sfm(
     progress(0.55)
 
     t0 = time.perf_counter()
-    mapping = pycolmap.IncrementalPipelineOptions()
-    mapping.use_prior_position = True
-    mapping.use_robust_loss_on_prior_position = True
-    mapping.ba_refine_focal_length = False
-    mapping.ba_refine_principal_point = False
-    mapping.ba_refine_extra_params = False
-    mapping.num_threads = options.threads
-    mapping.random_seed = options.seed
-    mapping.multiple_models = True
-    mapping.mapper.init_min_tri_angle = options.init_min_tri_angle
-    mapping.mapper.init_min_num_inliers = options.min_inliers * 2
-    mapping.mapper.abs_pose_min_num_inliers = options.min_inliers
-    mapping.min_model_size = options.min_model_images
-    mapping.mapper.abs_pose_refine_focal_length = False
-    mapping.mapper.abs_pose_refine_extra_params = False
+    refine_focal = intrinsics.focal_guess
+    mapping = _mapping_options(options, refine_focal)
     (work_dir / "model").mkdir()
     models = pycolmap.incremental_mapping(database, image_dir, work_dir / "model", mapping)
     timing["map"] = time.perf_counter() - t0
@@ -190,6 +187,8 @@ def run_sfm(
     recs = [r for r in recs if r.num_reg_images() >= options.min_model_images] or recs[:1]
     progress(0.8)
 
+    if refine_focal:
+        intrinsics = _refined(intrinsics, recs[0])
     sparse, kf_names = _to_sparse_map(recs, time_of, origin, intrinsics)
     rec = recs[0]
     t0 = time.perf_counter()
@@ -203,10 +202,52 @@ def run_sfm(
         "points3D": int(sum(r.num_points3D() for r in recs)),
         "mean_reprojection_error_px": round(float(rec.compute_mean_reprojection_error()), 4),
         "timing_s": {k: round(v, 3) for k, v in timing.items()},
+        "focal_refined": refine_focal,
+        "fx": round(intrinsics.fx, 2),
+        "fy": round(intrinsics.fy, 2),
     }
+    if refine_focal:
+        report["warnings"] = intrinsics.warnings[-1:]
     sparse.stats = {"sfm": report}
     progress(1.0)
     return sparse, report
+
+
+def _mapping_options(
+    options: SfmOptions, refine_focal: bool
+) -> pycolmap.IncrementalPipelineOptions:
+    """COLMAP's incremental mapping as the module doc says. Known intrinsics stay fixed
+    (freeing them drifted 16 %); a guessed focal length is worse than that drift, so
+    bundle adjustment and registration refine it."""
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.use_prior_position = True
+    mapping.use_robust_loss_on_prior_position = True
+    mapping.ba_refine_focal_length = refine_focal
+    mapping.ba_refine_principal_point = False
+    mapping.ba_refine_extra_params = False
+    mapping.num_threads = options.threads
+    mapping.random_seed = options.seed
+    mapping.multiple_models = True
+    mapping.mapper.init_min_tri_angle = options.init_min_tri_angle
+    mapping.mapper.init_min_num_inliers = options.min_inliers * 2
+    mapping.mapper.abs_pose_min_num_inliers = options.min_inliers
+    mapping.min_model_size = options.min_model_images
+    mapping.mapper.abs_pose_refine_focal_length = refine_focal
+    mapping.mapper.abs_pose_refine_extra_params = False
+    return mapping
+
+
+def _refined(intrinsics: Intrinsics, rec: pycolmap.Reconstruction) -> Intrinsics:
+    """The guessed intrinsics with the focal length the largest model refined (one
+    camera per model: the smaller models' refinements are left, having less support)."""
+    camera = next(iter(rec.cameras.values()))
+    fx = fy = float(camera.params[0])  # SIMPLE_PINHOLE: f, cx, cy
+    out = replace(intrinsics, fx=fx, fy=fy, warnings=list(intrinsics.warnings))
+    out.warnings.append(
+        f"SfM refined the guessed focal length from fx = {intrinsics.fx:.0f} px to "
+        f"{fx:.0f} px ({out.hfov_deg:.0f} deg horizontal field of view)"
+    )
+    return out
 
 
 def _to_sparse_map(

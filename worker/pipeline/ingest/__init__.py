@@ -1,8 +1,10 @@
 """Ingestion: flight logs, video, image sets and camera intrinsics, with plain-words errors.
 
 - `flight_log`: the common `FlightLog` and `read_flight_log` (dispatch on content);
-  the format families live in `srt` (DJI video subtitles) and `csv_logs` (AirData,
-  PhantomHelp/TXTlogToCSV, Litchi and our documented generic CSV).
+  the format families live in `srt` (DJI video subtitles; block structure and joined
+  recordings in `srt_blocks`, camera settings in `srt_camera`) and `csv_logs` (AirData,
+  PhantomHelp/TXTlogToCSV, Litchi and our documented generic CSV); `skipped` keeps
+  unreadable records out and decides when too few remain to use a file.
 - `video`: PyAV decoding with each frame's presentation time, as a stream.
 - `images`: JPEG image sets with EXIF GPS/time and DJI XMP attitude.
 - `camera`: intrinsics from EXIF, SRT hints and a table of drone cameras, overridable.

@@ -17,6 +17,10 @@ Generic CSV (our own minimal schema), one header line then one row per sample:
 - angles in degrees, DJI conventions (yaw clockwise from north, gimbal pitch -90 down);
   `speed` m/s; `recording` 1 while the camera records video, else 0.
   `latitude`, `longitude`, `altitude` are accepted for `lat`, `lon`, `alt`.
+
+A row that cannot be read (a garbled number or date, no time, a position off the
+Earth) is skipped and reported with its line; the file is refused only when too few
+rows remain (see `skipped`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from typing import Any
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.flight_log import FlightLog, build_flight_log, parse_float
+from worker.pipeline.ingest.skipped import RecordError, Skipped, off_earth
 
 _FEET = 0.3048
 _LENGTH_UNITS = {"feet": _FEET, "ft": _FEET, "foot": _FEET, "meters": 1.0, "metres": 1.0, "m": 1.0}
@@ -157,8 +162,17 @@ def parse_csv_log(text: str, path: Path | str) -> FlightLog:
     flavour, parse_row = _flavour(table)
     warnings: list[str] = []
     zone: dict[str, str | None] = {"zone": None}
-    rows = [parse_row(table, row, line, zone, warnings) for line, row in records]
+    skipped = Skipped(name, "rows")
+    rows = []
+    for line, row in records:
+        try:
+            rows.append(_usable(parse_row(table, row, line, zone, warnings), name))
+        except RecordError as error:
+            skipped.add(error)
+    warnings[:0] = skipped.check(len(records))
     meta: dict[str, Any] = {"columns": len(header)}
+    if len(skipped):
+        meta["rows_skipped"] = len(skipped)
     if flavour == "litchi_csv":
         _litchi_raw_gimbal(rows, name, warnings)
     return build_flight_log(
@@ -170,6 +184,16 @@ def parse_csv_log(text: str, path: Path | str) -> FlightLog:
         warnings=_unique(warnings),
         meta=meta,
     )
+
+
+def _usable(out: dict[str, Any], name: str) -> dict[str, Any]:
+    """The parsed row, or RecordError when it has no time or an impossible position."""
+    if out.get("t") is None and out.get("datetime") is None:
+        raise RecordError(name, out["line"], "the record has no time")
+    if off_earth(out.get("lat"), out.get("lon")):
+        reason = f"latitude {out['lat']} / longitude {out['lon']} is not a position on Earth"
+        raise RecordError(name, out["line"], reason)
+    return out
 
 
 def _unique(items: list[str]) -> list[str]:
@@ -212,7 +236,7 @@ def parse_datetime(text: str, name: str, line: int) -> tuple[datetime, str | Non
     """
     s = text.strip()
     if not s:
-        raise InputError(f"{name}, line {line}: empty date-time")
+        raise RecordError(name, line, "empty date-time")
     s2 = s.replace("/", "-")
     am_pm = re.search(r"\s*([AaPp][Mm])$", s2)
     if am_pm:
@@ -228,7 +252,7 @@ def parse_datetime(text: str, name: str, line: int) -> tuple[datetime, str | Non
     try:
         dt = datetime.fromisoformat(s2)
     except ValueError:
-        raise InputError(f"{name}, line {line}: unreadable date-time {s!r}") from None
+        raise RecordError(name, line, f"unreadable date-time {s!r}") from None
     if am_pm:
         hour = dt.hour % 12 + (12 if am_pm.group(1).lower() == "pm" else 0)
         dt = dt.replace(hour=hour)
@@ -370,7 +394,7 @@ def _generic_row(table, row, line, zone, warnings) -> dict[str, Any]:
     name = table.name
     text = table.text(row, "time").strip()
     if not text:
-        raise InputError(f"{name}, line {line}: empty time")
+        raise RecordError(name, line, "empty time")
     try:
         out["t"] = float(text)
     except ValueError:

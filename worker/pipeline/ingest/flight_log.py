@@ -1,4 +1,4 @@
-"""The common flight log every reader produces, and `read_flight_log` to read any of them.
+"""The common flight log every reader produces (read_log.py reads any of them into it).
 
 A `FlightLog` is a time series of GNSS positions and (optionally) attitudes:
 
@@ -17,7 +17,8 @@ A `FlightLog` is a time series of GNSS positions and (optionally) attitudes:
   down, roll positive right side down), keys among `roll`, `pitch`, `yaw` (aircraft) and
   `gimbal_roll`, `gimbal_pitch`, `gimbal_yaw`; NaN where a sample lacks the value.
 - `lines`: the line of the source file each sample came from, for messages.
-- `warnings`: what the reader had to guess or drop, in plain words.
+- `warnings`: what the reader had to guess or drop, in plain words (skipped unreadable
+  records with their line numbers among them; see `skipped`).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.skipped import RecordError
 
 ALT_ABSOLUTE = "absolute"
 ALT_TAKEOFF = "takeoff"
@@ -297,77 +299,15 @@ def build_flight_log(
 
 
 def parse_float(text: str, name: str, line: int, what: str) -> float | None:
-    """A number from a log field; empty means missing; anything else fails clearly."""
+    """A number from a log field; empty means missing; anything else fails clearly
+    (`RecordError`: the reader may skip the record and go on)."""
     s = text.strip().replace("\u2212", "-")
     if s == "" or s.lower() in ("nan", "n/a", "na", "null", "none", "-"):
         return None
     try:
         value = float(s)
     except ValueError:
-        raise InputError(f"{name}, line {line}: {what} {text.strip()!r} is not a number") from None
+        raise RecordError(name, line, f"{what} {text.strip()!r} is not a number") from None
     if not math.isfinite(value):
         return None
     return value
-
-
-_BINARY_SNIFF = 4096
-_DJI_TXT_HINT = (
-    "is a raw DJI flight record (DJIFlightRecord*.txt): from log version 13 on these are "
-    "encrypted with a key only DJI holds. Export the flight as CSV instead (AirData UAV, "
-    "PhantomHelp/TXTlogToCSV or Litchi) and use that file, or give the video's SRT file"
-)
-
-
-def read_flight_log(path: Path | str, *, angle_unit: str = "auto") -> FlightLog:
-    """Read a DJI SRT, an AirData / PhantomHelp / Litchi CSV or a generic CSV.
-
-    The format is recognised from the content, not the file name. `angle_unit`
-    ("auto", "deg", "rad") overrides the radians detection of SRT attitudes.
-    Raises InputError naming the file (and line) for anything that cannot be used.
-    """
-    from worker.pipeline.ingest import csv_logs, srt
-
-    path = Path(path)
-    name = path.name
-    if not path.is_file():
-        raise InputError(f"{name}: flight log not found")
-    raw = path.read_bytes()
-    if not raw.strip():
-        raise InputError(f"{name}: the flight log is empty")
-    head = raw[:_BINARY_SNIFF]
-    if not raw.startswith((b"\xff\xfe", b"\xfe\xff")) and _looks_binary(head):
-        if path.suffix.lower() in (".txt", ".dat") or b"DJI" in head[:64]:
-            raise InputError(f"{name} {_DJI_TXT_HINT}")
-        raise InputError(f"{name}: not a text flight log (binary content)")
-    text = _decode(raw, name)
-    if srt.looks_like_srt(text):
-        return srt.parse_srt(text, path, angle_unit=angle_unit)
-    if csv_logs.looks_like_csv(text):
-        return csv_logs.parse_csv_log(text, path)
-    if path.suffix.lower() == ".txt" and name.lower().startswith("djiflightrecord"):
-        raise InputError(f"{name} {_DJI_TXT_HINT}")
-    raise InputError(
-        f"{name}: not a flight log this program reads. Accepted: DJI video subtitles "
-        "(.SRT), AirData, PhantomHelp/TXTlogToCSV and Litchi CSV exports, or a CSV with "
-        "columns time, lat, lon, alt (see worker/pipeline/ingest/csv_logs.py)"
-    )
-
-
-def _looks_binary(head: bytes) -> bool:
-    if not head:
-        return False
-    if b"\x00" in head:
-        return True
-    control = sum(1 for b in head if b < 9 or 13 < b < 32)
-    return control / len(head) > 0.05
-
-
-def _decode(raw: bytes, name: str) -> str:
-    encodings = ("utf-16",) if raw.startswith((b"\xff\xfe", b"\xfe\xff")) else ()
-    for encoding in (*encodings, "utf-8-sig", "latin-1"):
-        try:
-            text = raw.decode(encoding)
-        except UnicodeDecodeError:
-            continue
-        return text.lstrip("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
-    raise InputError(f"{name}: the flight log is not text")

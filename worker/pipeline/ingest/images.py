@@ -4,7 +4,9 @@
   EXIF has none, DJI XMP `GpsLatitude`/`GpsLongitude` (or the misspelt `GpsLongtitude`).
 - Time: `DateTimeOriginal` + `SubSecTimeOriginal` (+ `OffsetTimeOriginal` when written,
   which makes it UTC); otherwise local time with no zone.
-- Camera: `Make`, `Model`, `FocalLength`, `FocalLengthIn35mmFilm`, image size.
+- Camera: `Make`, `Model`, `FocalLength`, `FocalLengthIn35mmFilm`, image size, and the
+  sensor width implied by `FocalPlaneXResolution`/`FocalPlaneResolutionUnit` over
+  `PixelXDimension` (the image width the camera meant; the JPEG's when absent).
 - DJI XMP (`drone-dji:` attributes or child elements, values signed strings like
   "+87.50"): gimbal and flight roll/pitch/yaw, `RelativeAltitude`, `AbsoluteAltitude`,
   `RtkStdLon`/`RtkStdLat`/`RtkStdHgt`.
@@ -27,6 +29,7 @@ import numpy as np
 import piexif
 
 from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.camera import focal_plane_sensor_width_mm
 from worker.pipeline.ingest.flight_log import ALT_ABSOLUTE, ALT_TAKEOFF, FlightLog
 
 JPEG_SUFFIXES = (".jpg", ".jpeg")
@@ -65,6 +68,7 @@ class ImageMeta:
     model: str = ""
     focal_mm: float | None = None
     focal_35mm: float | None = None
+    sensor_width_mm: float | None = None  # from EXIF FocalPlaneXResolution, when written
     xmp: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -89,6 +93,7 @@ class ImageMeta:
             "model": self.model,
             "focal_mm": self.focal_mm,
             "focal_35mm": self.focal_35mm,
+            "sensor_width_mm": self.sensor_width_mm,
             "xmp": self.xmp,
         }
 
@@ -177,6 +182,12 @@ def read_image_metadata(path: Path | str) -> ImageMeta:
     meta.focal_mm = _rational(sub.get(piexif.ExifIFD.FocalLength))
     f35 = sub.get(piexif.ExifIFD.FocalLengthIn35mmFilm)
     meta.focal_35mm = float(f35) if f35 else None
+    unit = sub.get(piexif.ExifIFD.FocalPlaneResolutionUnit)
+    meta.sensor_width_mm = focal_plane_sensor_width_mm(
+        _rational(sub.get(piexif.ExifIFD.FocalPlaneXResolution)),
+        unit if isinstance(unit, int) else None,
+        sub.get(piexif.ExifIFD.PixelXDimension) or width,
+    )
     stamp = _text(sub.get(piexif.ExifIFD.DateTimeOriginal) or zeroth.get(piexif.ImageIFD.DateTime))
     if stamp:
         try:
