@@ -2,6 +2,7 @@
 
     slidewatch bench detection --json OUT.json       (worker/commands/bench_detection.py)
     slidewatch bench reconstruction --json OUT.json  (worker/commands/bench_reconstruction.py)
+    slidewatch bench photos --json OUT.json          (worker/commands/bench_photos.py)
 
 Each prints its figures and writes them to --json.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import click
 
 from worker.commands.bench_detection import detection
+from worker.commands.bench_photos import photos
 from worker.commands.bench_reconstruction import reconstruction
 
 
@@ -21,3 +23,4 @@ def bench() -> None:
 
 bench.add_command(detection)
 bench.add_command(reconstruction)
+bench.add_command(photos)

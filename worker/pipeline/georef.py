@@ -85,6 +85,11 @@ class GeorefOptions:
     min_pairs: int = 4
     max_pairs: int = 2000  # longer trajectories are subsampled evenly
     seed: int = 0
+    # Photo sets (robust_fit.georeference_photos): vertical sigma at least this times the
+    # horizontal; outliers beyond this normalised residual and this many metres.
+    photo_vertical_ratio: float = 4.0
+    photo_outlier_threshold: float = 5.0
+    photo_min_outlier_m: float = 5.0
 
 
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -143,12 +148,26 @@ class GeorefResult:
     seconds: float = 0.0
     refinement: dict[str, Any] | None = None
     sigmas: np.ndarray | None = None  # GNSS sigmas (E, N, U) the fit used
+    # Photo sets: per photo name, residual east/north/up (m), used or outlier.
+    photos: list[dict[str, Any]] | None = None
+
+    @property
+    def outliers(self) -> list[dict[str, Any]]:
+        return [p for p in self.photos or [] if p["status"] == "outlier"]
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         points = np.asarray(points, dtype=np.float64)
         return points @ self.matrix[:3, :3].T + self.matrix[:3, 3]
 
     def to_dict(self) -> dict[str, Any]:
+        out = self._base_dict()
+        if self.photos is not None:
+            # Only photo sets: the video results keep the keys they always had.
+            out["outliers"] = [p["name"] for p in self.outliers]
+            out["photos"] = self.photos
+        return out
+
+    def _base_dict(self) -> dict[str, Any]:
         sim = None
         if self.similarity is not None:
             angles = Rotation.from_matrix(self.similarity.rotation).as_rotvec(degrees=True)

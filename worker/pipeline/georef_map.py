@@ -13,6 +13,11 @@ on the paper's mounds); the similarity the BA introduced is therefore undone and
 the bending is kept. Frames follow their keyframes. The `paper4` method is applied as
 the paper does, without refinement (its 4 x 4 is not a similarity, so the map is moved
 point by point).
+
+Photo sets (`photos`: the photo name of each camera time) are fitted by the robust
+photo fit (`robust_fit.georeference_photos`): outlier photos are named, left out of the
+fit and of the bundle adjustment's priors, and every photo's residual after the
+georeference (after the adjustment when it ran) is listed in `photos`.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from worker.pipeline.georef import (
     umeyama,
 )
 from worker.pipeline.ingest.flight_log import FlightLog
+from worker.pipeline.robust_fit import georeference_photos, photo_table
 from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
 from worker.pipeline.slam.result import SparseMap
 
@@ -55,15 +61,32 @@ class MapGeorefResult:
     time_offset_s: float
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    # Photo sets: one row per registered photo (photo_table's, plus the segment).
+    photos: list[dict[str, Any]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "crs": self.crs,
             "segments": self.segments,
             "time_offset_s": round(self.time_offset_s, 4),
             "seconds": round(self.seconds, 3),
             "warnings": self.warnings,
         }
+        if self.photos is not None:
+            out["photos"] = self.photos
+        return out
+
+
+def photo_names_at(times: np.ndarray, photos: dict[float, str]) -> list[str]:
+    """The photo name at each camera time (nearest photo time within 10 ms; a camera
+    without one is named by its time)."""
+    known = np.array(sorted(photos), dtype=np.float64)
+    by_time = [photos[t] for t in sorted(photos)]
+    names = []
+    for t in np.asarray(times, dtype=np.float64).tolist():
+        i = int(np.argmin(np.abs(known - t))) if known.size else -1
+        names.append(by_time[i] if i >= 0 and abs(known[i] - t) < 0.01 else f"t={t:.3f}s")
+    return names
 
 
 def georeference_map(
@@ -71,17 +94,24 @@ def georeference_map(
     log: FlightLog,
     offset_s: float,
     options: MapGeorefOptions | None = None,
+    photos: dict[float, str] | None = None,
 ) -> MapGeorefResult:
-    """Move `sparse` (in place) into the UTM zone of the survey; see the module doc."""
+    """Move `sparse` (in place) into the UTM zone of the survey; see the module doc.
+    `photos` (photo sets): camera time -> photo name."""
     start = time.perf_counter()
     options = options or MapGeorefOptions()
     epsg = survey_epsg(log)
     results: list[dict[str, Any]] = []
     warnings: list[str] = []
+    table: list[dict[str, Any]] | None = None if photos is None else []
     for segment in sparse.segments:
         traj = sparse.trajectory(segment)
         try:
-            fit = georeference(traj, log, offset_s, options.georef)
+            if photos is None:
+                fit = georeference(traj, log, offset_s, options.georef)
+            else:
+                names = photo_names_at(traj.t, photos)
+                fit = georeference_photos(traj, names, log, offset_s, options.georef)
         except InputError as exc:
             if len(sparse.segments) == 1:
                 raise
@@ -89,16 +119,26 @@ def georeference_map(
             _drop_segment(sparse, segment)
             continue
         entry = {"segment": segment, "frames": len(traj), "fit": fit.to_dict()}
+        # The outlier photos' GPS positions must not pull the adjustment either.
+        excluded = _outlier_times(fit, traj.t, photos)
         if fit.similarity is not None:
             s = fit.similarity
             sparse.transform(s.scale, s.rotation, s.translation, segment)
             if options.refine:
-                entry["refinement"] = _refine_segment(sparse, segment, log, offset_s, fit, options)
+                entry["refinement"] = _refine_segment(
+                    sparse, segment, log, offset_s, fit, options, excluded
+                )
         else:
             _apply_matrix(sparse, segment, fit)
         sparse.update_frames_from_keyframes()
-        entry["residuals_after_m"] = _residuals(sparse, segment, log, offset_s, epsg)
+        entry["residuals_after_m"] = _residuals(sparse, segment, log, offset_s, epsg, excluded)
+        if table is not None and photos is not None:
+            # The fit's table is superseded by the one after the adjustment, below.
+            entry["fit"].pop("photos", None)
+            table += _photo_rows(sparse, segment, log, offset_s, epsg, photos, excluded)
         results.append(entry)
+        if fit.photos is not None:
+            warnings += fit.warnings
     if not results:
         raise InputError("no part of the reconstruction could be georeferenced")
     return MapGeorefResult(
@@ -107,7 +147,40 @@ def georeference_map(
         time_offset_s=offset_s,
         seconds=time.perf_counter() - start,
         warnings=warnings,
+        photos=table,
     )
+
+
+def _outlier_times(
+    fit: GeorefResult, times: np.ndarray, photos: dict[float, str] | None
+) -> np.ndarray:
+    """Camera times of the photos the fit called outliers."""
+    if photos is None or not fit.outliers:
+        return np.zeros(0)
+    bad = {p["name"] for p in fit.outliers}
+    names = photo_names_at(times, photos)
+    return np.array([t for t, n in zip(times.tolist(), names, strict=True) if n in bad])
+
+
+def _photo_rows(
+    sparse: SparseMap,
+    segment: int,
+    log: FlightLog,
+    offset_s: float,
+    epsg: int,
+    photos: dict[float, str],
+    excluded: np.ndarray,
+) -> list[dict[str, Any]]:
+    """Each photo's camera centre in the georeferenced map minus its GPS position."""
+    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    times = sparse.kf_t[kf_idx]
+    rows = photo_table(
+        photo_names_at(times, photos),
+        sparse.kf_centres()[kf_idx] - world,
+        ~np.isin(times, excluded),
+        None,
+    )
+    return [{**row, "segment": segment} for row in rows]
 
 
 def _keyframe_priors(
@@ -129,9 +202,12 @@ def _refine_segment(
     offset_s: float,
     fit: GeorefResult,
     options: MapGeorefOptions,
+    excluded: np.ndarray,
 ) -> dict[str, Any]:
     epsg = int(fit.crs.split(":")[1])
     kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    keep = ~np.isin(sparse.kf_t[kf_idx], excluded)
+    kf_idx, world = kf_idx[keep], world[keep]
     if len(kf_idx) < 4:
         return {"skipped": "fewer than 4 keyframes with a GNSS position"}
     # Prior sigmas: the spread of the keyframes' residuals after the fit (not inflated
@@ -215,9 +291,17 @@ def _apply_matrix(sparse: SparseMap, segment: int, fit: GeorefResult) -> None:
 
 
 def _residuals(
-    sparse: SparseMap, segment: int, log: FlightLog, offset_s: float, epsg: int
+    sparse: SparseMap,
+    segment: int,
+    log: FlightLog,
+    offset_s: float,
+    epsg: int,
+    excluded: np.ndarray,
 ) -> dict[str, float]:
+    """Residual statistics over the keyframes, outlier photos left out."""
     kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    keep = ~np.isin(sparse.kf_t[kf_idx], excluded)
+    kf_idx, world = kf_idx[keep], world[keep]
     if len(kf_idx) == 0:
         return {}
     stats = residual_stats(sparse.kf_centres()[kf_idx], world)

@@ -540,7 +540,16 @@ def georeference(
         offset = refine_time_offset(offset, traj.t, offset_residual_fn(traj, log))
     out["time_offset"] = offset.to_dict()
     progress(0.2)
-    fit = georeference_map(sparse, log, offset.offset_s, options.georef)
+    photos = None
+    if ing.image_set:
+        # Photo sets get the robust fit, which names the photos whose GPS is off.
+        image_set = read_image_set(ing.image_set)
+        photos = {
+            float(t): Path(m.path).name
+            for t, m in zip(image_set.image_times.tolist(), image_set.images, strict=True)
+            if np.isfinite(t)
+        }
+    fit = georeference_map(sparse, log, offset.offset_s, options.georef, photos)
     sparse.save(work_dir / GEOREF_MAP)
     traj = sparse.trajectory()
     traj.crs = fit.crs
@@ -649,6 +658,12 @@ def write_report(work_dir: Path) -> dict[str, Any]:
             {"segment": s["segment"], **s.get("residuals_after_m", {})}
             for s in geo.get("segments", [])
         ],
+        # Photo sets: the photos left out of the georeference, with their residuals.
+        **(
+            {"photo_outliers": [p for p in geo["photos"] if p["status"] == "outlier"]}
+            if "photos" in geo
+            else {}
+        ),
         "stages": stages,
     }
     _write_json(work_dir / REPORT, report)

@@ -122,6 +122,8 @@ class GeoreferenceResult(ReconstructionStageResult):
     time_offset_s: float
     seconds: float
     warnings: list[str]
+    # image sets: per photo, residual east/north/up (m) and used or outlier
+    photos: list[dict[str, Any]] | None = field(default=None, metadata=_OPTIONAL)
 
 
 @dataclass(kw_only=True)

@@ -3,6 +3,10 @@
 - Stand-alone GPS (consumer drones, the paper's Phantom 4 Pro): a bias of a few
   metres, fresh for every flight, that drifts slowly during the flight (first-order
   Gauss-Markov), plus white noise; vertical errors about 2.5 times the horizontal.
+- consumer (phones, cameras, small drones writing GPS into each photo): a bias of a
+  few metres, an altitude that wanders by tens of metres within a minute (vertical
+  Gauss-Markov drift, sigma 15 m, tau 60 s) and now and then a fix tens of metres off
+  (multipath, re-acquisition: `outlier_rate_hz` events, each held `outlier_hold_s`).
 - RTK (fixed): centimetre bias and noise.
 - none: the log carries the true position (for tests).
 
@@ -29,6 +33,12 @@ class GnssErrorModel:
     drift_tau_s: float = 240.0
     noise_sigma_m: tuple[float, float, float] = (0.12, 0.12, 0.3)
     rate_hz: float = 10.0
+    # Outlier fixes (consumer): events per second, horizontal offset (uniform between the
+    # two values, any direction), vertical offset sigma, how long each lasts.
+    outlier_rate_hz: float = 0.0
+    outlier_h_m: tuple[float, float] = (20.0, 50.0)
+    outlier_v_sigma_m: float = 10.0
+    outlier_hold_s: float = 1.0
 
     @classmethod
     def named(cls, mode: str) -> GnssErrorModel:
@@ -42,6 +52,15 @@ class GnssErrorModel:
                 drift_tau_s=60.0,
                 noise_sigma_m=(0.008, 0.008, 0.015),
             )
+        if mode == "consumer":
+            return cls(
+                mode="consumer",
+                bias_sigma_m=(1.5, 1.5, 3.0),
+                drift_sigma_m=(0.6, 0.6, 15.0),
+                drift_tau_s=60.0,
+                noise_sigma_m=(0.3, 0.3, 1.0),
+                outlier_rate_hz=0.04,
+            )
         if mode == "none":
             return cls(
                 mode="none",
@@ -49,10 +68,14 @@ class GnssErrorModel:
                 drift_sigma_m=(0.0, 0.0, 0.0),
                 noise_sigma_m=(0.0, 0.0, 0.0),
             )
-        raise ValueError(f"unknown GNSS mode {mode!r}: use standalone, rtk or none")
+        raise ValueError(f"unknown GNSS mode {mode!r}: use standalone, consumer, rtk or none")
 
     def to_dict(self) -> dict:
         d = asdict(self)
+        if not self.outlier_rate_hz:
+            # Models without outliers keep the manifests they always wrote.
+            for key in ("outlier_rate_hz", "outlier_h_m", "outlier_v_sigma_m", "outlier_hold_s"):
+                d.pop(key)
         d["note"] = "sigmas per axis east, north, up (m); drift is first-order Gauss-Markov"
         return d
 
@@ -78,10 +101,18 @@ class GnssTrack:
     error_enu: np.ndarray
     bias_enu: np.ndarray
     model: GnssErrorModel
+    outlier_enu: np.ndarray | None = None  # the outlier fixes' part of error_enu
 
     def error_at(self, times: np.ndarray) -> np.ndarray:
         times = np.asarray(times, dtype=np.float64)
         return np.stack([np.interp(times, self.t, self.error_enu[:, k]) for k in range(3)], -1)
+
+    def outlier_at(self, times: np.ndarray) -> np.ndarray:
+        """(n, 3) the outlier part of the error at `times` (zeros without outliers)."""
+        times = np.asarray(times, dtype=np.float64)
+        if self.outlier_enu is None:
+            return np.zeros((times.size, 3))
+        return np.stack([np.interp(times, self.t, self.outlier_enu[:, k]) for k in range(3)], -1)
 
     def summary(self) -> dict:
         e = self.error_enu
@@ -110,7 +141,19 @@ def simulate_gnss(
         x = phi * x + steps[i]
         drift[i] = x
     noise = rng.normal(0.0, 1.0, (t.size, 3)) * np.asarray(model.noise_sigma_m)
-    return GnssTrack(t=t, error_enu=bias + drift + noise, bias_enu=bias, model=model)
+    error = bias + drift + noise
+    outliers = None
+    if model.outlier_rate_hz > 0:
+        # Drawn after everything else: the other modes' random streams stay as they were.
+        outliers = np.zeros((t.size, 3))
+        count = rng.poisson(model.outlier_rate_hz * (t[-1] - t[0]))
+        for start in rng.uniform(t[0], t[-1], count):
+            h = rng.uniform(*model.outlier_h_m)
+            az = rng.uniform(0.0, 2.0 * np.pi)
+            offset = [h * np.sin(az), h * np.cos(az), rng.normal(0.0, model.outlier_v_sigma_m)]
+            outliers[(t >= start) & (t < start + model.outlier_hold_s)] = offset
+        error = error + outliers
+    return GnssTrack(t=t, error_enu=error, bias_enu=bias, model=model, outlier_enu=outliers)
 
 
 @dataclass
