@@ -107,6 +107,11 @@ class SurveyFileOut(ORMModel):
     role: str
     name: str
     file: StoredFileOut
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="What reading the file had to skip or assume, e.g. a flight log's "
+        "unreadable blocks with their line numbers.",
+    )
     created_at: datetime
 
 

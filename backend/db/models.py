@@ -161,6 +161,8 @@ class SurveyFile(Base):
     role: Mapped[str] = mapped_column(String(16))  # video | log | image
     name: Mapped[str] = mapped_column(String(255))  # the file name as uploaded, made safe
     file_id: Mapped[int] = mapped_column(ForeignKey("stored_files.id"))
+    # What the check of the file had to warn about (e.g. a log's unreadable blocks skipped).
+    warnings: Mapped[list[str]] = mapped_column(JSON, default=list, server_default="[]")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     survey: Mapped[Survey] = relationship(back_populates="files")

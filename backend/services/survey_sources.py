@@ -140,7 +140,7 @@ def _read_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
         return {"duration_s": info.duration_s, "width": info.width, "height": info.height}
     if role == "log":
         log = read_flight_log(path)
-        return {"records": len(log), "format": log.source_format}
+        return {"records": len(log), "format": log.source_format, "warnings": log.warnings}
     meta = read_image_metadata(path)
     if not meta.has_gps:
         raise InputError(
@@ -153,7 +153,7 @@ def _record(
     session: Session, storage: LocalStorage, survey: Survey, role: str, name: str, saved: SavedFile
 ) -> SurveyFile:
     try:
-        check_source_file(storage.absolute(saved.relative_path), role, name)
+        checked = check_source_file(storage.absolute(saved.relative_path), role, name)
         stored = StoredFile(
             path=saved.relative_path,
             size_bytes=saved.size_bytes,
@@ -161,7 +161,13 @@ def _record(
             media_type=MEDIA_TYPES[role],
             original_name=name,
         )
-        survey_file = SurveyFile(survey=survey, role=role, name=name, file=stored)
+        survey_file = SurveyFile(
+            survey=survey,
+            role=role,
+            name=name,
+            file=stored,
+            warnings=list(checked.get("warnings", [])),
+        )
         session.add_all([stored, survey_file])
         session.commit()
     except BaseException:

@@ -214,3 +214,17 @@ def test_image_set_becomes_a_dsm(app, client, auth):
     assert reconstruct["sfm"]["registered"] >= 0.8 * len(photos)
     survey = client.get(f"/api/v1/sites/{site_id}/surveys/{sid}", headers=auth).json()
     assert survey["status"] == "ready" and survey["crs"].startswith("EPSG:326")
+
+
+def test_a_log_with_unreadable_blocks_is_kept_and_its_upload_says_which(app, client, auth):
+    """A Mavic Pro log with `GPS(N/A,N/A,3)` blocks: accepted, and the answer to the upload
+    (and the survey's file list) names the blocks the reader set aside."""
+    site = new_site(client, auth)
+    survey = new_source(client, auth, site)
+    log = Path(__file__).parents[1] / "reconstruction/fixtures/flight_logs/mavic_pro_gps_na.srt"
+    response = put_file(client, auth, site, survey["id"], log, "log")
+    assert response.status_code == 201, response.text
+    warnings = response.json()["warnings"]
+    assert warnings and any("line" in w for w in warnings), warnings
+    listed = client.get(f"/api/v1/sites/{site}/surveys/{survey['id']}/files", headers=auth)
+    assert listed.json()[0]["warnings"] == warnings
