@@ -5,11 +5,14 @@ API's GeoJSON are both written from the rows by `detection_feature`, so they hav
 ids and the same field names.
 """
 
+from collections.abc import Mapping
 from typing import Any
 
-from backend.db.models import Detection
+from backend.db.models import Comparison, Detection
 from worker.pipeline import detection_record
+from worker.pipeline.detection_methods import detection_method
 from worker.pipeline.detection_record import DetectionProperties, Uncertainty
+from worker.pipeline.errors import InputError
 
 
 def detection_row(
@@ -56,3 +59,19 @@ def detection_feature(row: Detection, extra: dict[str, Any] | None = None) -> di
         detection_properties(row),
         {"comparison_id": row.comparison_id, **(extra or {})},
     )
+
+
+def detection_model(comparison: Comparison, results: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """ "name@version" of the model that found (or will find) the detections, if any.
+
+    The one the detection stage ran (`results`: stage name -> result; scored: its scorer;
+    cnn: its network), else, before it has run, the registered model kept in the
+    parameters at creation (cnn); none for a method without a model (threshold), or for a
+    method whose module this process has not loaded.
+    """
+    try:
+        method = detection_method(comparison.method)
+    except InputError:
+        return None
+    ran = (results.get(method.stage.name) or {}).get("model")
+    return ran or ((comparison.parameters or {}).get(method.options_key) or {}).get("model")

@@ -18,12 +18,11 @@ from shapely.geometry import shape
 from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
+from backend.db.detections import detection_model
 from backend.db.models import Comparison, JobState, Report, Site, Survey
 from backend.db.stored_files import record_stored_file
 from backend.storage import LocalStorage
 from backend.storage_layout import report_file
-from worker.pipeline.detection_methods import detection_method
-from worker.pipeline.errors import InputError
 from worker.reports import Change, DetectionRow, ReportData
 
 MEDIA_TYPES = {"pdf": "application/pdf", "html": "text/html; charset=utf-8"}
@@ -44,23 +43,6 @@ def _aware(moment: datetime | None) -> datetime | None:
     return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
 
 
-def _detection_model(comparison: Comparison) -> str | None:
-    """ "name@version" of the model that found the comparison's detections, if any: what
-    its detection stage ran, else the registered model its parameters named (the rule of
-    services/comparisons.py: detection_model, over a finished comparison's summary)."""
-    stages = (comparison.summary or {}).get("stages") or {}
-    ran = next(
-        (r["model"] for r in stages.values() if isinstance(r, dict) and r.get("model")), None
-    )
-    if ran:
-        return ran
-    try:
-        key = detection_method(comparison.method).options_key
-    except InputError:  # a method whose module this process has not loaded
-        return None
-    return ((comparison.parameters or {}).get(key) or {}).get("model")
-
-
 def latest_comparison(session: Session, site_id: int) -> Comparison | None:
     post = aliased(Survey)
     return session.scalar(
@@ -72,15 +54,17 @@ def latest_comparison(session: Session, site_id: int) -> Comparison | None:
     )
 
 
-def model_version(method: str, detection_model: str | None = None) -> str:
+def model_version(method: str, model: str | None = None) -> str:
+    """What made the report's figures: the software, the detection method and its model."""
+
     def of(package: str) -> str:
         try:
             return version(package)
         except PackageNotFoundError:
             return "unknown"
 
-    model = f" (model {detection_model})" if detection_model else ""
-    return f"slidewatch {of('slidewatch')}, detection method '{method}'{model}, xdem {of('xdem')}"
+    ran = f" (model {model})" if model else ""
+    return f"slidewatch {of('slidewatch')}, detection method '{method}'{ran}, xdem {of('xdem')}"
 
 
 def _survey_label(survey: Survey) -> str:
@@ -164,7 +148,10 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         change=None,
         parameters=dict(comparison.parameters or {}),
         processing=_processing(comparison),
-        model_version=model_version(comparison.method, _detection_model(comparison)),
+        model_version=model_version(
+            comparison.method,
+            detection_model(comparison, (comparison.summary or {}).get("stages") or {}),
+        ),
         notes=notes,
     )
     data.change = _change(session, report, comparison.id, data.totals)

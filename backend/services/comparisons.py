@@ -1,6 +1,5 @@
 """Create a comparison of two surveys of one site and queue its job; say how it detects."""
 
-from collections.abc import Mapping
 from typing import Any
 
 from celery import Celery
@@ -8,6 +7,7 @@ from shapely.geometry import shape
 from sqlalchemy.orm import Session
 
 from backend.db import model_registry
+from backend.db.detections import detection_model
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
 from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
 from worker.pipeline.comparison import ComparisonOptions, stages_for
@@ -51,18 +51,6 @@ def stage_results(comparison: Comparison, job: Job | None) -> dict[str, dict[str
     if job is not None:
         return {run.stage: run.result for run in job.stages if run.result}
     return dict(kept or {})
-
-
-def detection_model(comparison: Comparison, results: Mapping[str, Mapping[str, Any]]) -> str | None:
-    """ "name@version" of the model that found (or will find) the detections, if any.
-
-    The one the detection stage ran (scored: its scorer; cnn: its network), else, before
-    it has run, the registered model kept in the parameters at creation (cnn); none for
-    a method without a model (threshold).
-    """
-    method = detection_method(comparison.method)
-    ran = (results.get(method.stage.name) or {}).get("model")
-    return ran or ((comparison.parameters or {}).get(method.options_key) or {}).get("model")
 
 
 def detection_info(comparison: Comparison, job: Job | None) -> dict[str, Any]:
