@@ -47,7 +47,6 @@ Targets from the issue: slam >= 10x faster than sfm; real-time factor >= 1; DSM 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import platform
 import shutil
@@ -56,7 +55,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rasterio
+from dsm_truth import (
+    coregistered_error,
+    dsm_errors,
+    read_truth_trajectory,
+    trajectory_errors,
+    truth_at,
+)
 
 from worker.pipeline.georef import umeyama
 from worker.pipeline.reconstruction import (
@@ -67,7 +72,6 @@ from worker.pipeline.reconstruction import (
 )
 from worker.pipeline.repeatability import coregister_checkpoints, mean_pairwise_difference
 from worker.pipeline.slam.result import SparseMap
-from worker.pipeline.trajectory import read_trajectory_csv
 from worker.simulator.gnss import (
     GnssErrorModel,
     ImuErrorModel,
@@ -76,23 +80,12 @@ from worker.simulator.gnss import (
 )
 from worker.simulator.manifest import Manifest
 from worker.simulator.simulate import SimulationOptions, simulate_scenario
-from worker.training.reconstructed_data import register_to_truth
 
 PAPER_TABLE1_M = {"east": 0.77, "north": 1.06, "up": 1.22}
 SCENARIOS = ("paper-mounds", "hillslope")
 
 
 # -- truth -------------------------------------------------------------------------------
-def read_truth_trajectory(path: Path) -> dict[str, np.ndarray]:
-    with open(path, encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
-    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0] if k != "utc"}
-
-
-def truth_at(truth: dict[str, np.ndarray], t: np.ndarray, keys: tuple[str, ...]) -> np.ndarray:
-    return np.column_stack([np.interp(t, truth["t_s"], truth[k]) for k in keys])
-
-
 def checkpoints(manifest: Manifest, truth: dict[str, np.ndarray]) -> np.ndarray:
     cps = manifest.data.get("scene", {}).get("checkpoints") or []
     if cps:
@@ -101,65 +94,6 @@ def checkpoints(manifest: Manifest, truth: dict[str, np.ndarray]) -> np.ndarray:
     ge, gn = np.meshgrid(np.linspace(e.min(), e.max(), 5), np.linspace(n.min(), n.max(), 5))
     ground = np.median(truth["u"]) - 90.0
     return np.column_stack([ge.ravel(), gn.ravel(), np.full(ge.size, ground)])
-
-
-# -- metrics -----------------------------------------------------------------------------
-def robust(values: np.ndarray) -> dict[str, float]:
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return {}
-    med = float(np.median(values))
-    dev = np.abs(values - med)
-    return {
-        "median": round(med, 4),
-        "nmad": round(1.4826 * float(np.median(dev)), 4),
-        "p95": round(float(np.percentile(dev, 95)), 4),
-        "cells": int(values.size),
-    }
-
-
-def dsm_errors(work: Path, truth_dsm: Path, to_truth=None) -> dict[str, Any]:
-    """DSM minus truth on the DSM's grid; `to_truth` (a similarity) moves the DSM's
-    coordinates onto the truth first (reconstruction-only error)."""
-    with rasterio.open(work / "dsm.tif") as src:
-        dsm = src.read(1, masked=True).filled(np.nan)
-        transform, crs = src.transform, src.crs
-    with rasterio.open(work / "dsm_filled.tif") as src:
-        filled = src.read(1)
-    rows, cols = np.indices(dsm.shape)
-    x, y = transform * (cols + 0.5, rows + 0.5)
-    pts = np.column_stack([x.ravel(), y.ravel(), dsm.ravel()])
-    if to_truth is not None:
-        pts = to_truth.apply(pts)
-    with rasterio.open(truth_dsm) as src:
-        truth = src.read(1, masked=True).filled(np.nan)
-        c, r = ~src.transform * (pts[:, 0], pts[:, 1])
-    finite = np.isfinite(pts).all(axis=1)
-    c = np.floor(np.where(finite, c, -1)).astype(int)
-    r = np.floor(np.where(finite, r, -1)).astype(int)
-    ok = (c >= 0) & (c < truth.shape[1]) & (r >= 0) & (r < truth.shape[0]) & finite
-    diff = np.full(pts.shape[0], np.nan)
-    diff[ok] = pts[ok, 2] - truth[r[ok], c[ok]]
-    diff = diff.reshape(dsm.shape)
-    del transform, crs
-    return {
-        "measured": robust(diff[filled == 0]),
-        "all": robust(diff[filled != 255]),
-    }
-
-
-def trajectory_errors(work: Path, truth: dict[str, np.ndarray]) -> dict[str, Any]:
-    traj = read_trajectory_csv(work / "trajectory.csv")
-    true = truth_at(truth, traj.t, ("e", "n", "u"))
-    sim = umeyama(traj.positions, true)
-    shape = np.linalg.norm(sim.apply(traj.positions) - true, axis=1)
-    absolute = traj.positions - true
-    return {
-        "frames": len(traj),
-        "rmse_after_similarity_m": round(float(np.sqrt((shape**2).mean())), 4),
-        "absolute_mean_enu_m": [round(float(v), 4) for v in absolute.mean(axis=0)],
-        "absolute_rmse_m": round(float(np.sqrt((absolute**2).sum(axis=1).mean())), 4),
-    }
 
 
 # -- synthetic logs for the georeferencing table ------------------------------------------
@@ -262,16 +196,6 @@ def georef_table(
 
 
 # -- one scenario ------------------------------------------------------------------------
-def coregistered_error(run: Path, truth_dsm: Path, dsm_json: dict[str, Any]) -> dict[str, Any]:
-    """DSM error after co-registering the DSM onto the truth (shift and tilt, as the
-    comparison co-registers two surveys): NMAD in metres and in DSM pixels."""
-    reg = register_to_truth(run / "dsm.tif", truth_dsm, run / "dsm_on_truth.tif")
-    return {
-        **reg.to_dict(),
-        "nmad_px": round(reg.nmad_after_m / float(dsm_json["resolution_m"]), 2),
-    }
-
-
 def run_scenario(name: str, work: Path, args: argparse.Namespace) -> dict[str, Any]:
     sim_dir = work / "sim"
     t0 = time.perf_counter()
@@ -314,7 +238,9 @@ def run_scenario(name: str, work: Path, args: argparse.Namespace) -> dict[str, A
             "completeness_before_inpainting": dsm_json["completeness"],
             "dsm_error_as_georeferenced_m": dsm_errors(run, truth_dsm),
             "dsm_error_reconstruction_only_m": dsm_errors(run, truth_dsm, to_truth),
-            "dsm_error_after_coregistration": coregistered_error(run, truth_dsm, dsm_json),
+            "dsm_error_after_coregistration": coregistered_error(
+                run, truth_dsm, dsm_json["resolution_m"]
+            ),
             "trajectory": traj,
             "georef_residuals_m": rec.results["georeference"]["segments"][0]["residuals_after_m"],
             "time_offset_s": rec.results["georeference"]["time_offset"]["offset_s"],

@@ -75,6 +75,29 @@ class ProductOut(ORMModel):
     created_at: datetime
 
 
+class QualityCheckOut(BaseModel):
+    """One check of a survey's quality verdict (worker/pipeline/quality.py)."""
+
+    name: str = Field(
+        description="`georeference_accuracy`, `georeference_residual`, `overlap_coverage`, "
+        "`segments_dropped` or `photo_outliers`."
+    )
+    value: float | None = Field(description="The survey's figure (metres, share or count).")
+    bound: float | None = Field(description="The bound it is held to; None for a count.")
+    passed: bool
+    message: str = Field(description="The figure and its bound, in plain words.")
+
+
+class QualityOut(BaseModel):
+    """Whether a reconstructed survey met the bounds its DSM is trusted by."""
+
+    passed: bool = Field(description="False when any check failed.")
+    checks: list[QualityCheckOut] = Field(
+        description="The checks that apply to the survey (a photo set's outliers, a "
+        "stated accuracy's fit ...), each failed one also among the survey's `warnings`."
+    )
+
+
 class SurveyOut(ORMModel):
     id: int
     site_id: int
@@ -87,6 +110,18 @@ class SurveyOut(ORMModel):
     resolution_m: float | None
     source_file: StoredFileOut | None
     error: str | None = None
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="What reading its files and reconstructing it had to skip or assume, "
+        "each once: the files' warnings (a flight log's skipped blocks with their lines, "
+        "the recording of a joined SRT that is used), then the reconstruction report's, "
+        "each quality check the survey failed among them.",
+    )
+    quality: QualityOut | None = Field(
+        default=None,
+        description="The reconstruction's quality verdict, from its latest report; None "
+        "before a report exists (and for an uploaded DSM).",
+    )
     created_at: datetime
 
 
@@ -97,7 +132,9 @@ class SourceSurveyCreate(BaseModel):
     options: dict[str, Any] | None = Field(
         default=None,
         description='Reconstruction options, e.g. {"method": "sfm"}, '
-        '{"camera": {"model": "FC6310"}}, {"time_offset_s": 1.5}.',
+        '{"camera": {"model": "FC6310"}}, {"time_offset_s": 1.5}, or an RTK drone\'s '
+        "position accuracy to check the georeference against: "
+        '{"georef": {"georef": {"position_sigma_m": [0.02, 0.02, 0.04]}}}.',
     )
 
 
@@ -178,6 +215,11 @@ class ComparisonOut(ORMModel):
     finished_at: datetime | None
     job_id: int | None = None
     detection: DetectionOut | None = None
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="What to bear in mind reading its results: each quality check its "
+        "pre- or post-event survey failed (see the survey's `quality`), naming the survey.",
+    )
 
 
 class StageRunOut(ORMModel):

@@ -45,6 +45,11 @@ class UploadOut(BaseModel):
     state: UploadState
     error: str | None
     survey_id: int | None
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="A survey's file, once complete: what reading it had to skip or assume "
+        "(the file's `warnings`, as GET .../surveys/{id}/files answers them).",
+    )
     created_by: str
     created_at: datetime
     completed_at: datetime | None

@@ -7,13 +7,17 @@ from backend.api.schemas import (
     DetectionOut,
     JobOut,
     ProductOut,
+    QualityOut,
     StageRunOut,
     StoredFileOut,
+    SurveyOut,
 )
 from backend.db import detections
-from backend.db.models import Comparison, Detection, Job, Product
-from backend.services.comparisons import detection_info
+from backend.db.models import Comparison, Detection, Job, Product, Survey
+from backend.services.comparisons import comparison_warnings, detection_info
 from backend.services.feedback import feedback_summary
+from backend.services.survey_sources import report_quality, survey_report, survey_warnings
+from backend.storage import LocalStorage
 from backend.urls import api_url
 from worker.jobs.control import job_progress, stage_help
 
@@ -29,6 +33,15 @@ def product_out(product: Product) -> ProductOut:
         download_url=api_url("sites", product.site_id, "products", product.id, "file"),
         created_at=product.created_at,
     )
+
+
+def survey_out(survey: Survey, storage: LocalStorage) -> SurveyOut:
+    out = SurveyOut.model_validate(survey)
+    report = survey_report(storage, survey)  # read once for both
+    out.warnings = survey_warnings(survey, report)
+    quality = report_quality(report)
+    out.quality = None if quality is None else QualityOut.model_validate(quality)
+    return out
 
 
 def job_out(job: Job) -> JobOut:
@@ -51,10 +64,11 @@ def job_out(job: Job) -> JobOut:
     )
 
 
-def comparison_out(comparison: Comparison, job: Job | None) -> ComparisonOut:
+def comparison_out(comparison: Comparison, job: Job | None, storage: LocalStorage) -> ComparisonOut:
     out = ComparisonOut.model_validate(comparison)
     out.job_id = job.id if job else None
     out.detection = DetectionOut(**detection_info(comparison, job))
+    out.warnings = comparison_warnings(storage, comparison)
     return out
 
 

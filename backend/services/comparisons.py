@@ -1,4 +1,5 @@
-"""Create a comparison of two surveys of one site and queue its job; say how it detects."""
+"""Create a comparison of two surveys of one site and queue its job; say how it detects
+and what to bear in mind reading it (a survey that missed its quality bounds)."""
 
 from typing import Any
 
@@ -9,10 +10,13 @@ from sqlalchemy.orm import Session
 from backend.db import model_registry
 from backend.db.detections import detection_model
 from backend.db.models import Comparison, Job, JobState, Site, Survey, SurveyStatus
+from backend.services.survey_sources import report_quality, survey_report
+from backend.storage import LocalStorage
 from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
 from worker.pipeline.comparison import ComparisonOptions, stages_for
 from worker.pipeline.detection_methods import default_method, detection_method, detection_methods
 from worker.pipeline.errors import InputError
+from worker.pipeline.quality import failed_messages
 
 
 class ComparisonRejected(ValueError):
@@ -67,6 +71,24 @@ def detection_info(comparison: Comparison, job: Job | None) -> dict[str, Any]:
         "error_model": difference.get("error_model"),
         "model": detection_model(comparison, results),
     }
+
+
+def comparison_warnings(storage: LocalStorage, comparison: Comparison) -> list[str]:
+    """Each quality check the comparison's pre- or post-event survey failed, naming the
+    survey: a change found between them is no surer than the surveys (none for surveys
+    without a reconstruction report, such as uploaded DSMs)."""
+    warnings = []
+    for role, survey in (
+        ("pre-event", comparison.pre_survey),
+        ("post-event", comparison.post_survey),
+    ):
+        quality = report_quality(survey_report(storage, survey))
+        if quality is not None:
+            warnings += [
+                f'The {role} survey "{survey.name}" missed its quality bounds: {message}'
+                for message in failed_messages(quality)
+            ]
+    return warnings
 
 
 def _model_reference(session: Session, requested: str | None) -> str:

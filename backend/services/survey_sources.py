@@ -4,6 +4,9 @@ A source survey is created first (status `receiving`), its files are added one b
 each checked as it arrives (the video decodes, the log parses, the photo is geotagged),
 and `submit_reconstruction` queues the job that turns them into a DSM (worker/jobs/
 reconstruction.py). A file that fails its check is removed with no row left behind.
+A file keeps what its check warned about (`SurveyFile.warnings`); a log is read against the
+survey's video, and read again when the video arrives or is deleted, so that its warnings
+speak of the recording processing will use (a DJI SRT may join several).
 
 A video survey may be submitted while its video is still arriving through a resumable
 upload (the log must be there): the job reads the video as it comes, and the upload,
@@ -11,6 +14,7 @@ marked `streamed`, is still handed over to the survey when it completes. Should 
 its checks then, the job fails with the upload's reason.
 """
 
+import json
 import re
 import tempfile
 from collections.abc import AsyncIterator
@@ -19,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from celery import Celery
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
@@ -41,6 +46,7 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.images import read_image_metadata
 from worker.pipeline.ingest.read_log import read_flight_log
 from worker.pipeline.ingest.video import probe_video
+from worker.pipeline.quality import failed_messages, survey_quality
 from worker.pipeline.reconstruction import ReconstructionOptions
 
 ROLES = ("video", "log", "image")
@@ -122,24 +128,31 @@ def _check_role(survey: Survey, role: str, name: str, streamed: bool = False) ->
             )
 
 
-def check_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
+def check_source_file(
+    path: Path, role: str, name: str, *, video_duration_s: float | None = None
+) -> dict[str, Any]:
     """Read the file as the pipeline will; raise InputError naming what is wrong.
 
     The readers name the file in their messages: they read it through a link named as
-    the user's file, not as its storage name.
+    the user's file, not as its storage name. A log is read with the survey's video
+    duration when there is a video (`video_duration_s`), as processing reads it: that
+    duration picks the recording of an SRT joined from several, so the warnings speak of
+    the recording that will be used.
     """
     with tempfile.TemporaryDirectory(prefix="slidewatch-check-") as folder:
         link = Path(folder) / name
         link.symlink_to(Path(path).resolve())
-        return _read_source_file(link, role, name)
+        return _read_source_file(link, role, name, video_duration_s)
 
 
-def _read_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
+def _read_source_file(
+    path: Path, role: str, name: str, video_duration_s: float | None
+) -> dict[str, Any]:
     if role == "video":
         info = probe_video(path)
         return {"duration_s": info.duration_s, "width": info.width, "height": info.height}
     if role == "log":
-        log = read_flight_log(path)
+        log = read_flight_log(path, video_duration_s=video_duration_s)
         return {"records": len(log), "format": log.source_format, "warnings": log.warnings}
     meta = read_image_metadata(path)
     if not meta.has_gps:
@@ -149,11 +162,48 @@ def _read_source_file(path: Path, role: str, name: str) -> dict[str, Any]:
     return {"width": meta.width, "height": meta.height}
 
 
+def _file_of_role(survey: Survey, role: str) -> SurveyFile | None:
+    return next((f for f in survey.files if f.role == role), None)
+
+
+def _video_duration(storage: LocalStorage, survey: Survey) -> float | None:
+    """The duration of the survey's video, None while it has none (or it has no
+    duration in its header): probed again rather than stored, as the job's ingest does."""
+    video = _file_of_role(survey, "video")
+    if video is None:
+        return None
+    return probe_video(storage.absolute(video.file.path)).duration_s
+
+
+def _recheck_log(storage: LocalStorage, survey: Survey, video_duration_s: float | None) -> None:
+    """Read the survey's log again against the video it now has (or no longer has), so
+    that its warnings say which recording processing will use.
+
+    A log that the video's duration makes unusable (the matching recording of a joined
+    file is unreadable) keeps its place: the video is fine, and the log's warnings say
+    why processing will fail with this pair.
+    """
+    log = _file_of_role(survey, "log")
+    if log is None:
+        return
+    path = storage.absolute(log.file.path)
+    try:
+        checked = check_source_file(path, "log", log.name, video_duration_s=video_duration_s)
+    except InputError as exc:
+        against = f"the video's {video_duration_s:.1f} s" if video_duration_s else "no video"
+        log.warnings = [f"{exc} (read against {against}; processing will stop there)"]
+        return
+    log.warnings = list(checked["warnings"])
+
+
 def _record(
     session: Session, storage: LocalStorage, survey: Survey, role: str, name: str, saved: SavedFile
 ) -> SurveyFile:
     try:
-        checked = check_source_file(storage.absolute(saved.relative_path), role, name)
+        duration = _video_duration(storage, survey) if role == "log" else None
+        checked = check_source_file(
+            storage.absolute(saved.relative_path), role, name, video_duration_s=duration
+        )
         stored = StoredFile(
             path=saved.relative_path,
             size_bytes=saved.size_bytes,
@@ -169,6 +219,8 @@ def _record(
             warnings=list(checked.get("warnings", [])),
         )
         session.add_all([stored, survey_file])
+        if role == "video":
+            _recheck_log(storage, survey, checked["duration_s"])
         session.commit()
     except BaseException:
         session.rollback()
@@ -227,6 +279,8 @@ def remove_survey_file(
     path = survey_file.file.path
     session.delete(survey_file)
     session.delete(survey_file.file)
+    if survey_file.role == "video":
+        _recheck_log(storage, survey, None)
     session.commit()
     storage.delete(path)
 
@@ -276,3 +330,53 @@ def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> J
         session.commit()
         raise
     return job
+
+
+def survey_report(storage: LocalStorage, survey: Survey) -> dict[str, Any] | None:
+    """The survey's latest reconstruction report (worker/pipeline/reconstruction.py
+    `write_report`), None before one exists (a DSM upload never has one)."""
+    reports = [p for p in survey.products if p.kind == "report"]
+    if not reports:
+        return None
+    path = storage.absolute(max(reports, key=lambda p: p.id).file.path)
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def report_quality(report: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The report's quality verdict (`{passed, checks}`, worker/pipeline/quality.py), None
+    without a report. Reports written before the verdict existed get it from the stage
+    results they keep, so an older survey that missed its bounds says so too."""
+    if report is None:
+        return None
+    return report.get("quality") or survey_quality(report.get("stages") or {})
+
+
+def survey_warnings(survey: Survey, report: dict[str, Any] | None) -> list[str]:
+    """What the survey's files and its reconstruction had to warn about, each said once:
+    the files' checks first (a log's as read against the survey's video), then the
+    reconstruction report's (`survey_report`), which repeats the log's and adds what the
+    later stages found and each quality check the survey failed."""
+    warnings = [w for f in survey.files for w in f.warnings]
+    if report is not None:
+        # The job hands the library links named as uploaded: the report names the
+        # files as the user knows them.
+        warnings += report.get("warnings", [])
+        quality = report_quality(report)
+        if quality is not None:
+            warnings += failed_messages(quality)
+    return list(dict.fromkeys(warnings))
+
+
+def uploaded_file_warnings(session: Session, upload: Upload) -> list[str]:
+    """The warnings of the survey file a complete resumable upload became, as they read
+    now (a log's are read again when its video arrives); none for a DSM's upload."""
+    if upload.purpose != "survey_file" or upload.state != UploadState.complete:
+        return []
+    found = session.scalar(
+        select(SurveyFile).where(
+            SurveyFile.survey_id == upload.survey_id, SurveyFile.name == upload.filename
+        )
+    )
+    return list(found.warnings) if found else []

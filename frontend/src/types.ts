@@ -28,6 +28,37 @@ export interface Survey {
   resolution_m: number | null;
   source_file: StoredFile | null;
   error?: string | null;
+  /** What reading its files and reconstructing it had to skip or assume, each once. */
+  warnings: string[];
+  /** The reconstruction's quality verdict; null before a report exists (and for a DSM). */
+  quality: SurveyQuality | null;
+  created_at: string;
+}
+
+/** Whether a reconstructed survey met the bounds its DSM is trusted by (SurveyOut.quality). */
+export interface SurveyQuality {
+  passed: boolean;
+  checks: QualityCheck[];
+}
+
+/** One check of the verdict: the survey's figure, its bound and both in plain words. */
+export interface QualityCheck {
+  name: "georeference_accuracy" | "georeference_residual" | "overlap_coverage" | "segments_dropped" | "photo_outliers";
+  value: number | null;
+  bound: number | null;
+  passed: boolean;
+  message: string;
+}
+
+/** One uploaded input of a video or photo survey (GET …/surveys/{id}/files). */
+export interface SurveyFile {
+  id: number;
+  survey_id: number;
+  role: "video" | "log" | "image";
+  name: string;
+  file: StoredFile;
+  /** What reading the file had to skip or assume, e.g. a log's unreadable blocks. */
+  warnings: string[];
   created_at: string;
 }
 
@@ -90,6 +121,8 @@ export interface Comparison {
   finished_at: string | null;
   job_id: number | null;
   detection?: ComparisonDetection | null;
+  /** Each quality check its pre- or post-event survey failed, naming the survey. */
+  warnings: string[];
 }
 
 /** How a comparison detects (ComparisonOut.detection): LoD fields null until its

@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
-from backend.db.models import StoredFile, SurveyFile
+from backend.db.models import StoredFile, Survey, SurveyFile
 from tests.api_helpers import run_job_inline, upload_dsm
 from tests.simulator.simtest_support import image_run
 
@@ -53,18 +53,33 @@ def stored_counts(app) -> tuple[int, int, int]:
     return rows, links, on_disk
 
 
+def garble_block(srt: Path, out: Path, block: int) -> int:
+    """A copy of `srt` whose `block`-th time range cannot be read; the block's first line."""
+    lines = srt.read_text().split("\n")
+    at = [i for i, line in enumerate(lines) if "-->" in line][block - 1]
+    lines[at] = lines[at].replace(":", "x", 1)
+    out.write_text("\n".join(lines))
+    return at  # the index line before it, counted from 1
+
+
 def test_video_and_log_become_a_dsm_that_can_be_compared(
-    app, client, auth, simulated_mounds_survey
+    app, client, auth, simulated_mounds_survey, tmp_path
 ):
     flight, truth = simulated_mounds_survey
     site_id = new_site(client, auth)
     survey = new_source(client, auth, site_id)
+    assert survey["quality"] is None  # no report yet
     sid = survey["id"]
     video = put_file(client, auth, site_id, sid, flight / "DJI_0001.MP4", "video")
     assert video.status_code == 201, video.text
     assert video.json()["file"]["size_bytes"] == (flight / "DJI_0001.MP4").stat().st_size
-    log = put_file(client, auth, site_id, sid, flight / "DJI_0001.SRT", "log")
+    # One unreadable block: skipped, and said so by the upload, the report and the survey.
+    srt = tmp_path / "DJI_0001.SRT"
+    bad_line = garble_block(flight / "DJI_0001.SRT", srt, block=5)
+    log = put_file(client, auth, site_id, sid, srt, "log")
     assert log.status_code == 201, log.text
+    skipped = [w for w in log.json()["warnings"] if "unreadable and skipped" in w]
+    assert len(skipped) == 1 and f"(line {bad_line}: " in skipped[0], log.json()["warnings"]
     listed = client.get(f"/api/v1/sites/{site_id}/surveys/{sid}/files", headers=auth).json()
     assert sorted(f["role"] for f in listed) == ["log", "video"]
 
@@ -92,6 +107,29 @@ def test_video_and_log_become_a_dsm_that_can_be_compared(
         for p in client.get(f"/api/v1/sites/{site_id}/surveys/{sid}/products", headers=auth).json()
     }
     assert set(products) == {"dsm", "points", "trajectory", "report"}
+    # The report gathers the stages' warnings, the log's skipped block among them; the
+    # survey answers its files' and the report's, each once, naming files as uploaded.
+    report = json.loads(client.get(products["report"]["download_url"], headers=auth).content)
+    assert any(f"unreadable and skipped (line {bad_line}: " in w for w in report["warnings"])
+    # The report names the log as uploaded, never by its storage name.
+    with app.state.sessionmaker() as session:
+        stored = session.get(SurveyFile, log.json()["id"]).file.path
+    assert not any(Path(stored).name in w for w in report["warnings"])
+    assert set(log.json()["warnings"]) <= set(report["warnings"]), report["warnings"]
+    assert survey["warnings"] == list(dict.fromkeys(log.json()["warnings"] + report["warnings"]))
+    # The survey answers the report's quality verdict, each failed check among its
+    # warnings: stand-alone GPS is held to the residual bound (it states no accuracy).
+    quality = report["quality"]
+    assert survey["quality"] == quality
+    checks = {c["name"]: c for c in quality["checks"]}
+    assert {"georeference_residual", "segments_dropped"} <= set(checks), quality
+    assert not {"georeference_accuracy", "photo_outliers"} & set(checks), quality
+    residual = checks["georeference_residual"]
+    assert residual["bound"] == 5.0 and residual["value"] < 1.0 and residual["passed"], residual
+    assert checks["segments_dropped"]["value"] == 0 and checks["segments_dropped"]["passed"]
+    failed = [c["message"] for c in quality["checks"] if not c["passed"]]
+    assert quality["passed"] is (not failed)
+    assert set(failed) <= set(report["warnings"]) and set(failed) <= set(survey["warnings"])
     path = client.get(products["trajectory"]["download_url"], headers=auth)
     assert path.status_code == 200
     line = json.loads(path.content)
@@ -114,6 +152,33 @@ def test_video_and_log_become_a_dsm_that_can_be_compared(
         f"/api/v1/sites/{site_id}/comparisons/{created.json()['comparison']['id']}", headers=auth
     ).json()
     assert comparison["status"] == "succeeded", comparison
+    # A comparison names each check its surveys failed (the uploaded DSM has no verdict).
+    assert comparison["warnings"] == [
+        f'The post-event survey "July flight" missed its quality bounds: {message}'
+        for message in failed
+    ]
+
+    # A report written before the verdict existed gets it from the stage results it keeps:
+    # a DSM mostly interpolated where the cameras overlapped misses its bounds, and the
+    # survey, its warnings and its comparisons say so.
+    with app.state.sessionmaker() as session:
+        (stored_report,) = [p for p in session.get(Survey, sid).products if p.kind == "report"]
+        report_path = app.state.storage.absolute(stored_report.file.path)
+    del report["quality"]
+    report["stages"]["dsm"]["overlap_coverage"] = 0.61
+    report_path.write_text(json.dumps(report))
+    survey = client.get(f"/api/v1/sites/{site_id}/surveys/{sid}", headers=auth).json()
+    assert survey["quality"]["passed"] is False
+    (overlap,) = [c for c in survey["quality"]["checks"] if c["name"] == "overlap_coverage"]
+    assert overlap["value"] == 0.61 and overlap["bound"] == 0.8 and not overlap["passed"]
+    assert overlap["message"].startswith("Only 61% of the area seen by two or more cameras")
+    assert overlap["message"] in survey["warnings"]
+    listed = client.get(f"/api/v1/sites/{site_id}/surveys", headers=auth).json()
+    assert [s["quality"] for s in listed] == [None, survey["quality"]]  # the DSM has none
+    comparisons = client.get(f"/api/v1/sites/{site_id}/comparisons", headers=auth).json()
+    assert comparisons[0]["warnings"] == [
+        f'The post-event survey "July flight" missed its quality bounds: {overlap["message"]}'
+    ]
 
 
 def test_bad_files_are_refused_and_leave_nothing(
@@ -228,3 +293,71 @@ def test_a_log_with_unreadable_blocks_is_kept_and_its_upload_says_which(app, cli
     assert warnings and any("line" in w for w in warnings), warnings
     listed = client.get(f"/api/v1/sites/{site}/surveys/{survey['id']}/files", headers=auth)
     assert listed.json()[0]["warnings"] == warnings
+
+
+def joined_srt(path: Path, bad_line_block: int | None = None) -> Path:
+    """An SRT of two recordings joined: 6 s (as long as the simulated video) flown at
+    09:00, then 12 s at 09:10; block `bad_line_block` of the first has a garbled time."""
+    blocks = []
+    for start, seconds, lon in (("09:00", 6, 8.2090), ("09:10", 12, 8.3090)):
+        for i in range(seconds):
+            number = len(blocks) + 1
+            times = f"00:00:{i:02d},000 --> 00:00:{i + 1:02d},000"
+            if number == bad_line_block:
+                times = f"00:00:{i:02d},000 --> 00:0x:{i + 1:02d},000"
+            blocks.append(
+                f"{number}\n{times}\n2026-07-01 {start}:{i:02d}\n"
+                f"GPS ({lon:.4f}, 47.{4690 + i}, 18), H 45.{i}m\n"
+            )
+    path.write_text("\n".join(blocks))
+    return path
+
+
+def test_a_joined_log_is_read_against_the_survey_video(
+    app, client, auth, simulated_mounds_survey, tmp_path
+):
+    """The upload's warnings speak of the recording processing will use: without a video,
+    the recordings are listed and the longest is kept for now; when the video arrives (or
+    was there first), the log is read again and the one as long as the video is kept."""
+    flight, _ = simulated_mounds_survey
+    video = flight / "DJI_0001.MP4"  # 6.07 s: 91 frames at 15 fps
+    log = joined_srt(tmp_path / "flight.SRT", bad_line_block=3)
+    site = new_site(client, auth)
+    sid = new_source(client, auth, site)["id"]
+    files_url = f"/api/v1/sites/{site}/surveys/{sid}/files"
+
+    alone = put_file(client, auth, site, sid, log, "log")
+    assert alone.status_code == 201, alone.text
+    (joined,) = [w for w in alone.json()["warnings"] if "joins 2 recordings" in w]
+    for words in (
+        "1: from 2026-07-01 09:00:00, 6.0 s, 6 blocks, lines 1-",
+        "2: from 2026-07-01 09:10:00, 12.0 s, 12 blocks",
+        "no video to choose by: kept recording 2, the longest, for now",
+    ):
+        assert words in joined, joined
+    # The garbled block is in the recording set aside: nothing skipped is said of it.
+    assert not any("unreadable and skipped" in w for w in alone.json()["warnings"])
+
+    added = put_file(client, auth, site, sid, video, "video")
+    assert added.status_code == 201, added.text
+    listed = {f["role"]: f for f in client.get(files_url, headers=auth).json()}
+    warnings = listed["log"]["warnings"]
+    assert any("kept recording 1: its length matches the video's 6.1 s" in w for w in warnings)
+    assert "flight.SRT: 1 of 6 blocks unreadable and skipped (line 11: " in " ".join(warnings)
+    survey = client.get(f"/api/v1/sites/{site}/surveys/{sid}", headers=auth).json()
+    assert survey["warnings"] == warnings
+    listed_surveys = client.get(f"/api/v1/sites/{site}/surveys", headers=auth).json()
+    assert [s["warnings"] for s in listed_surveys if s["id"] == sid] == [warnings]
+
+    # Without its video again, the log is back to the longest recording.
+    removed = client.delete(f"{files_url}/{listed['video']['id']}", headers=auth)
+    assert removed.status_code == 204
+    (log_file,) = client.get(files_url, headers=auth).json()
+    assert log_file["warnings"] == alone.json()["warnings"]
+
+    # The video first: the log's upload answer already names the recording that is used.
+    other = new_source(client, auth, site)["id"]
+    assert put_file(client, auth, site, other, video, "video").status_code == 201
+    answer = put_file(client, auth, site, other, log, "log")
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["warnings"] == warnings

@@ -320,7 +320,10 @@ def test_a_flight_log_joins_its_video_survey(
     assert wrong_role.status_code == 415 and "must end with" in wrong_role.json()["detail"]
     location = create(client, auth, len(data), meta).headers["Location"]
     assert patch(client, auth, location, 0, data).status_code == 204
-    assert client.get(location, headers=auth).json()["survey_id"] == survey["id"]
+    status = client.get(location, headers=auth).json()
+    assert status["survey_id"] == survey["id"]
     with app.state.sessionmaker() as session:
         files = session.scalars(select(SurveyFile)).all()
         assert [(f.role, f.name) for f in files] == [("log", log.name)]
+        # The upload's answer says what reading the log had to assume, as the file does.
+        assert status["warnings"] and status["warnings"] == files[0].warnings

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from playwright.sync_api import Page, Request, Route, expect
 
+from tests.api.test_survey_sources import garble_block
 from tests.e2e.conftest import USER, App, shot
 from tests.video_helpers import moov_before_mdat
 from worker.pipeline.detection_methods import default_method, method_names
@@ -262,6 +263,17 @@ def api_default_method(page: Page, app: App) -> dict:
     return defaults[0]
 
 
+def api_survey(page: Page, app: App, site_name: str, survey_name: str) -> dict:
+    """A survey as GET /api/v1/sites/{id}/surveys answers it, asked with the page's token."""
+    token = page.evaluate("() => localStorage.getItem('slidewatch.token')")
+    headers = {"Authorization": f"Bearer {token}"}
+    sites = page.request.get(app.url + "/api/v1/sites", headers=headers).json()
+    site_id = next(s["id"] for s in sites if s["name"] == site_name)
+    surveys = page.request.get(f"{app.url}/api/v1/sites/{site_id}/surveys", headers=headers)
+    assert surveys.ok, surveys.text()
+    return next(s for s in surveys.json() if s["name"] == survey_name)
+
+
 def zoom_to_site(page: Page) -> None:
     page.get_by_role("button", name="Zoom to site").click()
     page.wait_for_timeout(400)
@@ -287,13 +299,16 @@ def clip_right_edge(page: Page, pane: str) -> float:
 
 
 def test_a_video_survey_is_processed_while_it_uploads(
-    page: Page, app_server: App, simulated_mounds_survey
+    page: Page, app_server: App, simulated_mounds_survey, tmp_path: Path
 ) -> None:
     """The camera's MP4 (index last) goes up index first, and the reconstruction is queued
-    as soon as the server knows the video's upload: its frames are decoded as they come."""
+    as soon as the server knows the video's upload: its frames are decoded as they come.
+    Its log has an unreadable block: a notice under the file and in the survey says which."""
     flight, _ = simulated_mounds_survey
     camera_video = flight / "DJI_0001.MP4"
     assert not moov_before_mdat(camera_video)
+    srt = tmp_path / "DJI_0001.SRT"
+    bad_line = garble_block(flight / "DJI_0001.SRT", srt, block=5)
     sign_in(page, app_server)
     create_site(page, "South slope")
     requests: list[str] = []
@@ -307,7 +322,7 @@ def test_a_video_survey_is_processed_while_it_uploads(
     page.on("request", log)
     page.get_by_label("Video + flight log").check()
     page.get_by_label("Video (.mp4 or .mov)").set_input_files(str(camera_video))
-    page.get_by_label("Flight log (.srt or .csv)").set_input_files(str(flight / "DJI_0001.SRT"))
+    page.get_by_label("Flight log (.srt or .csv)").set_input_files(str(srt))
     page.get_by_label("Survey name").fill("After the storm")
     page.get_by_label(re.compile(r"^Flown at")).fill("2026-07-03T09:00")
     page.get_by_role("button", name="Upload", exact=True).click()
@@ -323,6 +338,33 @@ def test_a_video_survey_is_processed_while_it_uploads(
     assert len(stored) == 1 and moov_before_mdat(stored[0])
     assert stored[0].stat().st_size == camera_video.stat().st_size
     expect(page.locator(".survey-list")).to_contain_text("After the storm")
+    skipped = re.compile(
+        rf"DJI_0001\.SRT: 1 of \d+ blocks unreadable and skipped \(line {bad_line}: "
+    )
+    notice = page.locator('#upload-warnings .file-warnings[data-file="DJI_0001.SRT"]')
+    expect(notice).to_contain_text("DJI_0001.SRT was read with")
+    expect(notice).to_contain_text(skipped)
+    notice.scroll_into_view_if_needed()
+    shot(page, "video-survey-log-warnings")
+    survey = page.locator(".survey-list .survey", has_text="After the storm")
+    expect(survey.locator(".survey-warnings summary")).to_contain_text("Read with")
+    survey.locator(".survey-warnings summary").click()
+    expect(survey.locator(".survey-warnings")).to_contain_text(skipped)
+    # Its quality verdict as the API answers it: a survey that missed its bounds (the
+    # simulated 6 s pass measures too little of its overlap) is marked in its row with
+    # the first failed check, every check one click away; one that met them is not.
+    quality = api_survey(page, app_server, "South slope", "After the storm")["quality"]
+    failed = [c["message"] for c in quality["checks"] if not c["passed"]]
+    mark = survey.locator(".survey-quality")
+    if failed:
+        more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+        expect(mark.locator("summary")).to_have_text(
+            f"Missed its quality bounds: {failed[0]}{more}"
+        )
+        mark.locator("summary").click()
+        expect(mark.locator("li")).to_have_count(len(quality["checks"]))
+    else:
+        expect(mark).to_have_count(0)
     shot(page, "video-survey-processed")
 
 

@@ -2,6 +2,7 @@
 
     slidewatch bench detection --json OUT.json       (worker/commands/bench_detection.py)
     slidewatch bench reconstruction --json OUT.json  (worker/commands/bench_reconstruction.py)
+    slidewatch bench reconstruction --flights N --json OUT.json   (many seeds, same module)
     slidewatch bench photos --json OUT.json          (worker/commands/bench_photos.py)
 
 Each prints its figures and writes them to --json.

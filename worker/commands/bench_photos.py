@@ -1,31 +1,49 @@
 """`slidewatch bench photos`: georeferencing photo sets with consumer GPS.
 
     slidewatch bench photos --json benchmarks/results/photos.json
+    slidewatch bench photos --json OUT.json --full 3 --work-dir data/bench-photos
 
-A subcommand of the `bench` group (worker/commands/bench.py). Each seed flies a
-lawnmower photo survey (`--lines` lines of `--photos-per-line` photos, one every
-`--interval-s` seconds), draws the photos' GPS from the simulator's "consumer" GNSS model
-(worker/simulator/gnss.py: bias of metres, altitude drifting by tens of metres within a
-minute, outlier fixes tens of metres off) and stands in for SfM with the true camera
-centres moved into an arbitrary frame (random rotation, scale, offset) plus
-`--sfm-noise-m` of noise: what is measured is the georeferencing, not the rendering
-or COLMAP (the end-to-end tests run those). Both fits run on the same data:
+A subcommand of the `bench` group (worker/commands/bench.py).
+
+Measure where you did not tune: the robust fit (worker/pipeline/robust_fit.py) and its
+constants were chosen on the simulator's "consumer" GNSS model (worker/simulator/gnss.py),
+so its figures there are on fitted data. The "field" model (worker/simulator/gnss_field.py:
+stepped geometry bias, barometric random walk and ramp, latency, spatially clustered
+multipath, time-tag slips, Student-t noise) was built independently and nothing was tuned
+on it: those figures are held out. `--gnss-model both` (the default) reports both, each
+labelled.
+
+Georeferencing only (the default): each seed flies a lawnmower photo survey (`--lines`
+lines of `--photos-per-line` photos, one every `--interval-s` seconds), draws the photos'
+GPS from the model and stands in for SfM with the true camera centres moved into an
+arbitrary frame (random rotation, scale, offset) plus `--sfm-noise-m` of noise: what is
+measured is the georeferencing, not the rendering or COLMAP. Both fits run on the same data:
 
 - `robust`: what photo sets use (`robust_fit.georeference_photos`);
 - `similarity`: the fit of video trajectories (`georef.georeference`), which photo
   sets used before.
 
-Per fit: horizontal and vertical RMS error of the georeferenced camera centres against
-the TRUE positions (not the noisy GPS; the flight's common GNSS bias, which no fit without
-ground control can see, included) as median / p90 / worst over the seeds; for the robust
-fit the outlier photos flagged against those planted (a GPS error from an outlier fix of
-more than 10 m) and the time.
+Per model and fit, median / p90 / worst over the seeds: horizontal and vertical RMS error
+of the georeferenced camera centres against the TRUE positions (not the noisy GPS; the
+flight's mean GNSS error, which no fit without ground control can see, included), the same
+beyond that mean, and the fit's residuals (model minus GPS, RMS over the photos the fit
+kept: the robust fit leaves its outliers out, the similarity keeps every photo), the share
+of sets below the issue's 3 m, and the time; for the robust fit the outlier photos flagged
+against those planted (the gross part of a photo's GPS error, outlier fix or multipath
+or time-tag slip, more than 10 m horizontally): recall and false flags.
+
+`--full N`: end to end, rendering and the real reconstruction
+(worker/commands/bench_photos_full.py).
+
+The JSON has one block per model under "models"; its top level also repeats the first
+model's block (consumer, by default) under the keys the file had before both models.
 """
 
 from __future__ import annotations
 
 import json
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -34,16 +52,30 @@ import numpy as np
 from pyproj import Transformer
 from scipy.spatial.transform import Rotation
 
+from worker.commands.bench_photos_full import run_full
+from worker.commands.photo_bench_figures import (
+    LABELS,
+    MODELS,
+    PLANTED_M,
+    TARGET_M,
+    flag_counts,
+    fmt,
+    model_of,
+    outlier_figures,
+    rms,
+    share_below,
+    summary,
+)
 from worker.pipeline.attitude import rotation_world_from_camera
 from worker.pipeline.georef import GeorefOptions, georeference
 from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.robust_fit import georeference_photos
 from worker.pipeline.trajectory import Trajectory
-from worker.simulator.gnss import GnssErrorModel, simulate_gnss
+from worker.simulator.gnss_field import PositionFn, simulate_flight_gnss
 
 EPSG = 32632
 ORIGIN = np.array([446_000.0, 5_253_000.0, 500.0])
-PLANTED_M = 10.0  # an outlier fix this far off (horizontally) counts as planted
+FITS = ("robust", "similarity")
 
 
 def _survey(
@@ -67,12 +99,23 @@ def _survey(
     return np.array(times), np.array(pts) + ORIGIN, np.array(heads)
 
 
-def _rms(d: np.ndarray) -> tuple[float, float]:
-    """Horizontal and vertical RMS of (n, 3) errors."""
-    return (
-        float(np.sqrt((d[:, :2] ** 2).sum(axis=1).mean())),
-        float(np.sqrt((d[:, 2] ** 2).mean())),
-    )
+def _track(times: np.ndarray, true: np.ndarray) -> PositionFn:
+    """The aircraft's true position at any time: straight between the photos (the turns
+    too), hovering before the first and after the last (the field model's multipath and
+    time-tag slips depend on where it is and how it moves)."""
+
+    def position_at(t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        return np.stack([np.interp(t, times, true[:, k] - ORIGIN[k]) for k in range(3)], -1)
+
+    return position_at
+
+
+def _seed_rng(seed: int, model: str) -> np.random.Generator:
+    # consumer keeps the stream its figures always had; field gets one of its own.
+    if model == "consumer":
+        return np.random.default_rng(seed)
+    return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(model.encode())]))
 
 
 def run_seed(
@@ -83,12 +126,15 @@ def run_seed(
     interval_s: float,
     speed_m_s: float,
     sfm_noise_m: float,
+    model: str = "consumer",
 ) -> dict[str, Any]:
-    rng = np.random.default_rng(seed)
+    """One simulated photo set under GNSS `model`, both fits; figures in metres."""
+    rng = _seed_rng(seed, model)
     times, true, heads = _survey(lines, per_line, spacing_m, interval_s, speed_m_s)
-    gnss = simulate_gnss(GnssErrorModel.named("consumer"), -5.0, times[-1] + 5.0, rng)
+    gnss = simulate_flight_gnss(model_of(model), -5.0, times[-1] + 5.0, _track(times, true), rng)
     err = gnss.error_at(times)
-    planted = np.flatnonzero(np.hypot(*gnss.outlier_at(times)[:, :2].T) > PLANTED_M)
+    gross = np.hypot(*gnss.outlier_at(times)[:, :2].T)
+    planted = np.flatnonzero(gross > PLANTED_M)
     logged = true + err
     lon, lat = Transformer.from_crs(f"EPSG:{EPSG}", "EPSG:4326", always_xy=True).transform(
         logged[:, 0], logged[:, 1]
@@ -110,52 +156,187 @@ def run_seed(
     traj = Trajectory(times, local, r_local, np.ones(len(times), bool))
     names = [f"DJI_{i + 1:04d}.JPG" for i in range(len(times))]
     out: dict[str, Any] = {"seed": seed, "photos": len(times), "planted": len(planted)}
-    t0 = time.perf_counter()
-    robust = georeference_photos(traj, names, log, 0.0, GeorefOptions(seed=seed))
-    out["robust_seconds"] = time.perf_counter() - t0
     # The flight's mean GNSS error over the good photos: what no fit without ground
     # control can see; errors beyond it measure the fit itself.
     good = np.ones(len(times), bool)
     good[planted] = False
     bias = err[good].mean(axis=0)
-    h, v = _rms(robust.apply(local) - true)
-    out["robust_h_beyond_bias"], out["robust_v_beyond_bias"] = _rms(
-        robust.apply(local) - true - bias
-    )
-    flagged = {p["name"] for p in robust.outliers}
-    hits = len(flagged & {names[i] for i in planted})
-    out.update({"robust_h": h, "robust_v": v, "flagged": len(flagged), "flagged_planted": hits})
+    t0 = time.perf_counter()
+    robust = georeference_photos(traj, names, log, 0.0, GeorefOptions(seed=seed))
+    out["robust_seconds"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     plain = georeference(traj, log, 0.0, GeorefOptions(seed=seed))
     out["similarity_seconds"] = time.perf_counter() - t0
-    out["similarity_h"], out["similarity_v"] = _rms(plain.apply(local) - true)
-    out["similarity_h_beyond_bias"], out["similarity_v_beyond_bias"] = _rms(
-        plain.apply(local) - true - bias
-    )
-    out["gnss_bias_h"] = float(np.hypot(*gnss.bias_enu[:2]))
+    for fit, res in (("robust", robust), ("similarity", plain)):
+        placed = res.apply(local)
+        out[f"{fit}_h"], out[f"{fit}_v"] = rms(placed - true)
+        out[f"{fit}_h_beyond_bias"], out[f"{fit}_v_beyond_bias"] = rms(placed - true - bias)
+        # Model minus GPS over the photos the fit kept (the robust fit's residual
+        # statistics leave its outliers out; the similarity keeps every photo).
+        r = res.residuals
+        out[f"{fit}_residual_h"] = float(np.hypot(r["rms_east"], r["rms_north"]))
+        out[f"{fit}_residual_v"] = float(r["rms_up"])
+    flagged = {p["name"] for p in robust.outliers}
+    out.update(flag_counts(flagged, names, gross))
+    out["gnss_mean_error_h"] = float(np.hypot(bias[0], bias[1]))
     return out
 
 
-def _summary(values: list[float]) -> dict[str, float]:
-    a = np.asarray(values)
-    return {
-        "median": round(float(np.median(a)), 3),
-        "p90": round(float(np.percentile(a, 90)), 3),
-        "worst": round(float(a.max()), 3),
+def model_block(model: str, runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The figures of one GNSS model over its seeds."""
+    block: dict[str, Any] = {"label": LABELS[model], "gnss": model_of(model).to_dict()}
+    for fit in FITS:
+        h = [r[f"{fit}_h"] for r in runs]
+        res_h = [r[f"{fit}_residual_h"] for r in runs]
+        block[fit] = {
+            "horizontal_rms_m": summary(h),
+            "vertical_rms_m": summary([r[f"{fit}_v"] for r in runs]),
+            "horizontal_rms_beyond_bias_m": summary([r[f"{fit}_h_beyond_bias"] for r in runs]),
+            "vertical_rms_beyond_bias_m": summary([r[f"{fit}_v_beyond_bias"] for r in runs]),
+            "residual_horizontal_rms_m": summary(res_h),
+            "residual_vertical_rms_m": summary([r[f"{fit}_residual_v"] for r in runs]),
+            "share_of_sets_below_3m": {
+                "horizontal_error": share_below(h, TARGET_M),
+                "horizontal_residual": share_below(res_h, TARGET_M),
+            },
+            "seconds_per_set": summary([r[f"{fit}_seconds"] for r in runs]),
+        }
+    block["robust"]["outliers"] = outlier_figures(runs)
+    block["gnss_mean_error_h_m"] = summary([r["gnss_mean_error_h"] for r in runs])
+    block["runs"] = [
+        {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in runs
+    ]
+    return block
+
+
+def print_block(model: str, block: dict[str, Any], seeds: int, seconds: float) -> None:
+    click.echo(f"== {model} GNSS ({block['label']}), {seeds} seeds, {seconds:.1f} s")
+    click.echo("   median / p90 / worst (m)")
+    for fit in FITS:
+        f = block[fit]
+        click.echo(
+            f"   {fit:10s} error vs truth: horizontal {fmt(f['horizontal_rms_m'])}, vertical "
+            f"{fmt(f['vertical_rms_m'])} | beyond the flight's mean GNSS error: horizontal "
+            f"{fmt(f['horizontal_rms_beyond_bias_m'])}, vertical "
+            f"{fmt(f['vertical_rms_beyond_bias_m'])}"
+        )
+        share = f["share_of_sets_below_3m"]
+        click.echo(
+            f"   {'':10s} residual (model - GPS, photos kept): horizontal "
+            f"{fmt(f['residual_horizontal_rms_m'])}, vertical "
+            f"{fmt(f['residual_vertical_rms_m'])} | sets below 3 m: error "
+            f"{share['horizontal_error']:.0%}, residual {share['horizontal_residual']:.0%} | "
+            f"{f['seconds_per_set']['median']:.3f} s per set"
+        )
+    o = block["robust"]["outliers"]
+    recall = "n/a" if o["recall"] is None else f"{o['recall']:.0%}"
+    click.echo(
+        f"   outliers: the robust fit flagged {o['flagged_and_planted']} of {o['planted']} "
+        f"planted (> 10 m; recall {recall}), {o['flagged_moderate']} of {o['moderate']} "
+        f"moderate (1-10 m), {o['false_flags']} false flags (no gross error) in "
+        f"{o['sets_with_a_false_flag']} of {seeds} sets; flight's mean GNSS error "
+        f"(horizontal) {fmt(block['gnss_mean_error_h_m'])}"
+    )
+
+
+def _run_fast(
+    models: list[str],
+    seeds: int,
+    lines: int,
+    per_line: int,
+    spacing_m: float,
+    interval_s: float,
+    speed_m_s: float,
+    sfm_noise_m: float,
+) -> dict[str, Any]:
+    """The georeferencing-only bench over `seeds` seeds per model; prints its figures."""
+    start = time.perf_counter()
+    result: dict[str, Any] = {
+        "options": {
+            "seeds": seeds,
+            "lines": lines,
+            "photos_per_line": per_line,
+            "line_spacing_m": spacing_m,
+            "interval_s": interval_s,
+            "speed_m_s": speed_m_s,
+            "sfm_noise_m": sfm_noise_m,
+        },
+        "note": "RMS error of the georeferenced camera centres against the true positions "
+        "(m), the flight's mean GNSS error included; residuals are model minus GPS over the "
+        "photos the fit kept; SfM simulated (true centres + noise)",
+        "models": {},
     }
+    for model in models:
+        t0 = time.perf_counter()
+        runs = [
+            run_seed(s, lines, per_line, spacing_m, interval_s, speed_m_s, sfm_noise_m, model)
+            for s in range(seeds)
+        ]
+        block = model_block(model, runs)
+        block["seconds"] = round(time.perf_counter() - t0, 3)
+        result["models"][model] = block
+        print_block(model, block, seeds, block["seconds"])
+    # The keys the file had before it held two models: the first model's figures.
+    first = result["models"][models[0]]
+    result.update(
+        {
+            "gnss": first["gnss"],
+            "robust": first["robust"],
+            "similarity": first["similarity"],
+            "gnss_bias_h_m": first["gnss_mean_error_h_m"],
+            "runs": first["runs"],
+        }
+    )
+    result["seconds"] = round(time.perf_counter() - start, 3)
+    click.echo(f"{len(models)} model(s) x {seeds} seeds in {result['seconds']:.1f} s")
+    return result
 
 
+# -- end to end (--full) ------------------------------------------------------------------
 @click.command("photos")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), required=True)
-@click.option("--seeds", type=int, default=20, show_default=True)
+@click.option(
+    "--gnss-model",
+    type=click.Choice([*MODELS, "both"]),
+    default="both",
+    show_default=True,
+    help="consumer: the model the fit was tuned on (fitted); field: built independently, "
+    "nothing tuned on it (held out).",
+)
+@click.option("--seeds", type=int, default=100, show_default=True)
 @click.option("--lines", type=int, default=4, show_default=True)
 @click.option("--photos-per-line", type=int, default=10, show_default=True)
 @click.option("--line-spacing-m", type=float, default=40.0, show_default=True)
 @click.option("--interval-s", type=float, default=2.0, show_default=True)
 @click.option("--speed-m-s", type=float, default=8.0, show_default=True)
 @click.option("--sfm-noise-m", type=float, default=0.1, show_default=True)
+@click.option(
+    "--full",
+    type=click.IntRange(0, None),
+    default=0,
+    show_default=True,
+    help="End to end instead: N seeds per model of rendered photos, sfm reconstruction, DSM.",
+)
+@click.option(
+    "--work-dir",
+    type=click.Path(path_type=Path),
+    default=Path("data/bench-photos"),
+    show_default=True,
+    help="--full: each seed's simulation and reconstruction, kept for re-runs.",
+)
+@click.option(
+    "--full-scenario",
+    type=click.Choice(["hillslope", "paper-mounds"]),
+    default="hillslope",
+    show_default=True,
+)
+@click.option("--full-width", type=int, default=912, show_default=True)
+@click.option("--full-height", type=int, default=608, show_default=True)
+@click.option("--first-seed", type=int, default=1, show_default=True, help="--full only.")
+@click.option("--fresh", is_flag=True, help="--full: run every reconstruction again whole.")
 def photos(
     json_path: Path,
+    gnss_model: str,
     seeds: int,
     lines: int,
     photos_per_line: int,
@@ -163,63 +344,31 @@ def photos(
     interval_s: float,
     speed_m_s: float,
     sfm_noise_m: float,
+    full: int,
+    work_dir: Path,
+    full_scenario: str,
+    full_width: int,
+    full_height: int,
+    first_seed: int,
+    fresh: bool,
 ) -> None:
-    """Photo sets with consumer GPS: robust fit against the trajectory fit, against truth."""
-    start = time.perf_counter()
-    runs = [
-        run_seed(s, lines, photos_per_line, line_spacing_m, interval_s, speed_m_s, sfm_noise_m)
-        for s in range(seeds)
-    ]
-    result: dict[str, Any] = {
-        "gnss": GnssErrorModel.named("consumer").to_dict(),
-        "options": {
-            "seeds": seeds,
-            "lines": lines,
-            "photos_per_line": photos_per_line,
-            "line_spacing_m": line_spacing_m,
-            "interval_s": interval_s,
-            "speed_m_s": speed_m_s,
-            "sfm_noise_m": sfm_noise_m,
-        },
-        "note": "RMS error of the georeferenced camera centres against the true positions "
-        "(m), the flight's GNSS bias included; SfM simulated (true centres + noise)",
-    }
-    for fit in ("robust", "similarity"):
-        result[fit] = {
-            "horizontal_rms_m": _summary([r[f"{fit}_h"] for r in runs]),
-            "vertical_rms_m": _summary([r[f"{fit}_v"] for r in runs]),
-            "horizontal_rms_beyond_bias_m": _summary([r[f"{fit}_h_beyond_bias"] for r in runs]),
-            "vertical_rms_beyond_bias_m": _summary([r[f"{fit}_v_beyond_bias"] for r in runs]),
-            "seconds_per_set": _summary([r[f"{fit}_seconds"] for r in runs]),
-        }
-    result["robust"]["outliers"] = {
-        "planted": sum(r["planted"] for r in runs),
-        "flagged": sum(r["flagged"] for r in runs),
-        "flagged_and_planted": sum(r["flagged_planted"] for r in runs),
-    }
-    result["gnss_bias_h_m"] = _summary([r["gnss_bias_h"] for r in runs])
-    result["seconds"] = round(time.perf_counter() - start, 3)
-    result["runs"] = [
-        {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in runs
-    ]
-    for fit in ("robust", "similarity"):
-        h, v = result[fit]["horizontal_rms_m"], result[fit]["vertical_rms_m"]
-        hb, vb = (
-            result[fit]["horizontal_rms_beyond_bias_m"],
-            result[fit]["vertical_rms_beyond_bias_m"],
+    """Photo sets with consumer GPS: the robust fit against the trajectory fit, against
+    the truth, on the fitted (consumer) and the held-out (field) GNSS model."""
+    models = list(MODELS) if gnss_model == "both" else [gnss_model]
+    if full:
+        result = run_full(
+            models, full, first_seed, work_dir, full_scenario, full_width, full_height, fresh
         )
-        click.echo(
-            f"{fit:10s} horizontal RMS median {h['median']:.2f} p90 {h['p90']:.2f} worst "
-            f"{h['worst']:.2f} m | vertical median {v['median']:.2f} p90 {v['p90']:.2f} "
-            f"worst {v['worst']:.2f} m | beyond the GNSS bias: horizontal median "
-            f"{hb['median']:.2f} p90 {hb['p90']:.2f} worst {hb['worst']:.2f}, vertical "
-            f"median {vb['median']:.2f} p90 {vb['p90']:.2f} worst {vb['worst']:.2f} m"
+    else:
+        result = _run_fast(
+            models,
+            seeds,
+            lines,
+            photos_per_line,
+            line_spacing_m,
+            interval_s,
+            speed_m_s,
+            sfm_noise_m,
         )
-    o = result["robust"]["outliers"]
-    click.echo(
-        f"outliers: {o['flagged']} flagged, {o['planted']} planted, "
-        f"{o['flagged_and_planted']} of the planted flagged; GNSS bias (horizontal) median "
-        f"{result['gnss_bias_h_m']['median']:.2f} m; {seeds} seeds in {result['seconds']:.1f} s"
-    )
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")

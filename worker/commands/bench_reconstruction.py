@@ -1,10 +1,13 @@
 """`slidewatch bench reconstruction`: slam against sfm on simulated surveys.
 
     slidewatch bench reconstruction --json benchmarks/results/reconstruction.json
+    slidewatch bench reconstruction --flights 20 --json benchmarks/results/flights.json
 
-A subcommand of the `bench` group (worker/commands/bench.py). It runs
-benchmarks/reconstruction.py, which documents every figure; the work directory keeps
-the simulated surveys for re-runs.
+A subcommand of the `bench` group (worker/commands/bench.py). Without `--flights` it runs
+benchmarks/reconstruction.py (one survey per scenario, in depth); with `--flights N` it
+runs benchmarks/flights_run.py (N flights, each drawing its conditions from its seed,
+summarised per scenario x GNSS mode). Those modules document every figure; the work
+directory keeps the simulated surveys for re-runs.
 """
 
 from __future__ import annotations
@@ -12,10 +15,25 @@ from __future__ import annotations
 import importlib.util
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import click
+from click.core import ParameterSource
 
-_SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reconstruction.py"
+_BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def load_benchmark(name: str) -> ModuleType:
+    """benchmarks/<name>.py as a module. The benchmarks are scripts, not a package: they
+    import their shared modules (dsm_truth, flights ...) by name from their own folder,
+    as Python does for a script, so that folder goes on the path first."""
+    if str(_BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(_BENCHMARKS))
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", _BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 @click.command("reconstruction")
@@ -33,7 +51,12 @@ _SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reconstruction.p
     type=click.Choice(["paper-mounds", "hillslope"]),
     help="Default: both.",
 )
-@click.option("--video-seconds", type=float, default=None, help="Default: the whole plan.")
+@click.option(
+    "--video-seconds",
+    type=float,
+    default=None,
+    help="Default: the whole plan; with --flights, each flight draws 20-30 s.",
+)
 @click.option("--width", type=int, default=1280, show_default=True)
 @click.option("--height", type=int, default=720, show_default=True)
 @click.option("--fps", type=float, default=30.0, show_default=True)
@@ -45,7 +68,24 @@ _SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reconstruction.p
     show_default=True,
     help="Flights of the repeated-flight (paper Table 1) experiment; 0 skips it.",
 )
+@click.option(
+    "--flights",
+    type=int,
+    default=0,
+    help="Run N simulated flights instead, each with conditions drawn from its seed "
+    "(benchmarks/flights.py); the video is then 640x360 unless --width/--height say.",
+)
+@click.option("--first-seed", type=int, default=1, show_default=True, help="With --flights.")
+@click.option(
+    "--sfm-every",
+    type=int,
+    default=5,
+    show_default=True,
+    help="With --flights: every K-th flight is also reconstructed with sfm (0: none).",
+)
+@click.pass_context
 def reconstruction(
+    ctx: click.Context,
     json_path: Path,
     work_dir: Path,
     scenarios: tuple[str, ...],
@@ -55,12 +95,24 @@ def reconstruction(
     fps: float,
     gnss_trials: int,
     repeat_flights: int,
+    flights: int,
+    first_seed: int,
+    sfm_every: int,
 ) -> None:
     """Wall time slam vs sfm, real-time factor, DSM, trajectory and georeferencing error."""
-    spec = importlib.util.spec_from_file_location("bench_reconstruction", _SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    if flights > 0:
+        # The many-flight run's own default size: short, small videos (issue 18).
+        if ctx.get_parameter_source("width") is ParameterSource.DEFAULT:
+            width = 640
+        if ctx.get_parameter_source("height") is ParameterSource.DEFAULT:
+            height = 360
+        seeds = list(range(first_seed, first_seed + flights))
+        report = load_benchmark("flights_run").run(
+            json_path, work_dir, seeds, scenarios, video_seconds, (width, height, fps), sfm_every
+        )
+        click.echo(report["table"])
+        return
+    module = load_benchmark("reconstruction")
     argv = ["--json", str(json_path), "--work-dir", str(work_dir)]
     argv += ["--width", str(width), "--height", str(height), "--fps", str(fps)]
     argv += ["--gnss-trials", str(gnss_trials), "--repeat-flights", str(repeat_flights)]

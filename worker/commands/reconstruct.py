@@ -60,6 +60,14 @@ EXIT_INPUT_ERROR = 2
     default=None,
     help="log time = video time + this (seconds); estimated when not given.",
 )
+@click.option(
+    "--position-sigma",
+    type=(float, float),
+    default=None,
+    metavar="H V",
+    help="The log's position accuracy (1-sigma, m, horizontal and vertical) when it "
+    "states none, e.g. 0.02 0.04 for an RTK drone: the georeference is checked against it.",
+)
 @click.option("--width", type=int, default=640, show_default=True)
 @click.option("--height", type=int, default=360, show_default=True)
 @click.option(
@@ -83,6 +91,7 @@ def reconstruct(
     fx: float | None,
     hfov: float | None,
     time_offset: float | None,
+    position_sigma: tuple[float, float] | None,
     width: int,
     height: int,
     from_stage: str,
@@ -94,6 +103,9 @@ def reconstruct(
         options.camera.width = None
     options.frames.width, options.frames.height = width, height
     options.georef.georef.method = georef
+    if position_sigma is not None:
+        h, v = position_sigma
+        options.georef.georef.position_sigma_m = (h, h, v)
     options.dsm.resolution_m = resolution
     options.dsm.statistic = "median" if median else "mean"
     options.dsm.png = png

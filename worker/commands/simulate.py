@@ -85,10 +85,12 @@ EXIT_INPUT_ERROR = 2
 )
 @click.option(
     "--gnss",
-    type=click.Choice(["standalone", "rtk", "none"]),
+    type=click.Choice(["standalone", "consumer", "field", "rtk", "none"]),
     default="standalone",
     show_default=True,
-    help="GNSS error model of the logs.",
+    help="GNSS error model of the logs: consumer (photo GPS: drifting altitude, outlier "
+    "fixes; worker/simulator/gnss.py) or field (held out: stepped bias, barometric walk, "
+    "clustered multipath, time-tag slips; worker/simulator/gnss_field.py).",
 )
 @click.option(
     "--log-time-offset",

@@ -31,6 +31,7 @@ from worker.pipeline.progress import ProgressFn
 
 IMAGES_DIR = "images"
 ARRIVING_DIR = "arriving"  # a link named as the user's video to the upload still arriving
+INPUTS_DIR = "inputs"  # links named as the user's video and log to the stored files
 
 
 def _link_files(files: dict[str, str], folder: Path) -> None:
@@ -70,11 +71,13 @@ class ReconstructionJob(StorageJob):
         survey = self._survey(session, job)
         paths = {f.name: str(self.storage.absolute(f.file.path)) for f in survey.files}
         files = {f.role: paths[f.name] for f in survey.files if f.role != "image"}
+        names = {f.role: f.name for f in survey.files if f.role != "image"}
         images = {f.name: paths[f.name] for f in survey.files if f.role == "image"}
         inputs: dict[str, Any] = {
             "kind": survey.kind.value,
             "video": files.get("video"),
             "log": files.get("log"),
+            "names": names,
             "images": images,
             "work_dir": str(
                 self.storage.absolute(survey_reconstruction_folder(survey.site_id, survey.id))
@@ -97,13 +100,21 @@ class ReconstructionJob(StorageJob):
         if inputs.get("video_refused"):
             raise InputError(f"the video upload failed: {inputs['video_refused']}")
         stall_s = self.context.settings.upload_stall_timeout_s
-        video = inputs["video"]
+        video, log = inputs["video"], inputs["log"]
+        # The library names the files in its messages and report: the user's names.
+        names = inputs.get("names", {})
+        if log and "log" in names:
+            _link_files({names["log"]: log}, work_dir / INPUTS_DIR)
+            log = str(work_dir / INPUTS_DIR / names["log"])
         if inputs.get("video_bytes") is not None:
             _link_files({inputs["video_name"]: video}, work_dir / ARRIVING_DIR)
             video = str(work_dir / ARRIVING_DIR / inputs["video_name"])
+        elif video and "video" in names:
+            _link_files({names["video"]: video}, work_dir / INPUTS_DIR)
+            video = str(work_dir / INPUTS_DIR / names["video"])
         source = pipeline.ReconstructionInputs(
             video=video,
-            log=inputs["log"],
+            log=log,
             video_bytes=inputs.get("video_bytes"),
             video_stall_timeout_s=stall_s,
         )

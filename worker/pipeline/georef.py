@@ -90,6 +90,23 @@ class GeorefOptions:
     photo_vertical_ratio: float = 4.0
     photo_outlier_threshold: float = 5.0
     photo_min_outlier_m: float = 5.0
+    # Photos whose positions state their own accuracy (RTK): an outlier needs only be
+    # this far off, and a photo stating none is weighed as stand-alone GPS of this sigma.
+    photo_rtk_min_outlier_m: float = 0.5
+    standalone_sigma_m: tuple[float, float] = (2.5, 5.0)
+    # A fit whose horizontal (vertical) RMS residual exceeds this times the positions'
+    # stated sigma, plus the allowance for the reconstruction's own error, misses the
+    # accuracy the log promises: reported, as the cameras or the log are then wrong.
+    stated_accuracy_factor: float = 3.0
+    reconstruction_allowance_m: float = 0.05
+    # The log's position accuracy (1-sigma east, north, up, m) when the log states none
+    # itself, as the user declares it: (0.02, 0.02, 0.04) for an RTK drone. None: only
+    # what the log states (RTK photos) is checked.
+    position_sigma_m: tuple[float, float, float] | None = None
+    # A video segment whose residuals after the adjustment exceed this many times the
+    # accuracy bound is broken (tracking lost and resumed wrongly): left out, with the
+    # reason, when another segment is within its bound.
+    broken_segment_factor: float = 10.0
 
 
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -150,6 +167,10 @@ class GeorefResult:
     sigmas: np.ndarray | None = None  # GNSS sigmas (E, N, U) the fit used
     # Photo sets: per photo name, residual east/north/up (m), used or outlier.
     photos: list[dict[str, Any]] | None = None
+    # The positions' own stated sigma (E, N, U; median), when the log states one (RTK),
+    # and whether the fit's residuals stay within it (see `check_stated_accuracy`).
+    stated_sigma: np.ndarray | None = None
+    within_stated_accuracy: bool | None = None
 
     @property
     def outliers(self) -> list[dict[str, Any]]:
@@ -199,6 +220,10 @@ class GeorefResult:
             "gnss_sigmas_m": None
             if self.sigmas is None
             else [round(float(v), 4) for v in self.sigmas],
+            "stated_sigma_m": None
+            if self.stated_sigma is None
+            else [round(float(v), 4) for v in self.stated_sigma],
+            "within_stated_accuracy": self.within_stated_accuracy,
         }
 
 
@@ -522,6 +547,47 @@ def residual_stats(predicted: np.ndarray, world: np.ndarray) -> dict[str, float]
         "p95_3d": float(np.percentile(dist, 95)),
         "max_3d": float(dist.max()),
     }
+
+
+def check_stated_accuracy(
+    residuals: dict[str, float], stated: np.ndarray, options: GeorefOptions
+) -> str | None:
+    """None when the fit's RMS residuals (`residual_stats`) stay within
+    `stated_accuracy_factor` times the stated sigma (E, N, U) plus the reconstruction
+    allowance; else a warning naming both."""
+    rms_h = float(np.hypot(residuals["rms_east"], residuals["rms_north"]))
+    stated_h = float(np.hypot(stated[0], stated[1]))
+    bound_h, bound_v = accuracy_bounds(stated, options)
+    if rms_h <= bound_h and residuals["rms_up"] <= bound_v:
+        return None
+    return (
+        f"the georeference misses the positions' stated accuracy: RMS residual "
+        f"{rms_h:.2f} m horizontally and {residuals['rms_up']:.2f} m vertically where the "
+        f"log states {stated_h:.3f} m and {float(stated[2]):.3f} m (allowed "
+        f"{bound_h:.2f} m and {bound_v:.2f} m): the reconstruction is distorted or some "
+        "positions are wrong"
+    )
+
+
+def position_accuracy(log: FlightLog, options: GeorefOptions) -> np.ndarray | None:
+    """The positions' 1-sigma (east, north, up): as the log states it (median), else as
+    declared in the options, else None (nothing to check against)."""
+    stated = log.stated_sigma_m()
+    if stated is not None:
+        return np.asarray(stated, dtype=np.float64)
+    if options.position_sigma_m is not None:
+        return np.asarray(options.position_sigma_m, dtype=np.float64)
+    return None
+
+
+def accuracy_bounds(stated: np.ndarray, options: GeorefOptions) -> tuple[float, float]:
+    """The horizontal and vertical RMS residuals a fit may leave against positions of
+    this sigma (east, north, up)."""
+    factor, allowance = options.stated_accuracy_factor, options.reconstruction_allowance_m
+    return (
+        factor * float(np.hypot(stated[0], stated[1])) + allowance,
+        factor * float(stated[2]) + allowance,
+    )
 
 
 RefineFn = Callable[[GeorefResult, MatchedPairs], dict[str, Any]]

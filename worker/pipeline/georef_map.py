@@ -33,8 +33,11 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.georef import (
     GeorefOptions,
     GeorefResult,
+    accuracy_bounds,
+    check_stated_accuracy,
     georeference,
     log_to_utm,
+    position_accuracy,
     residual_stats,
     survey_epsg,
     umeyama,
@@ -141,6 +144,11 @@ def georeference_map(
             warnings += fit.warnings
     if not results:
         raise InputError("no part of the reconstruction could be georeferenced")
+    accuracy = position_accuracy(log, options.georef)
+    if photos is None and accuracy is not None:
+        results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
+        if dropped:
+            sparse.update_frames_from_keyframes()
     return MapGeorefResult(
         crs=f"EPSG:{epsg}",
         segments=results,
@@ -149,6 +157,51 @@ def georeference_map(
         warnings=warnings,
         photos=table,
     )
+
+
+def _check_segments(
+    sparse: SparseMap,
+    results: list[dict[str, Any]],
+    accuracy: np.ndarray,
+    options: GeorefOptions,
+    warnings: list[str],
+) -> tuple[list[dict[str, Any]], int]:
+    """Each video segment's residuals after the adjustment against the log's accuracy:
+    `within_stated_accuracy` on its entry, a warning when it misses, and a broken segment
+    (beyond `broken_segment_factor` times the bound) left out with the reason when
+    another segment is not broken. Returns the entries kept and how many were left out."""
+    bound, _ = accuracy_bounds(accuracy, options)
+    broken = []
+    for entry in results:
+        after = entry.get("residuals_after_m") or {}
+        if "rms_east" not in after:
+            continue
+        miss = check_stated_accuracy(after, accuracy, options)
+        entry["stated_sigma_m"] = [round(float(v), 4) for v in accuracy]
+        entry["within_stated_accuracy"] = miss is None
+        rms_h = float(np.hypot(after["rms_east"], after["rms_north"]))
+        if rms_h > options.broken_segment_factor * bound:
+            broken.append((entry, rms_h))
+        elif miss:
+            warnings.append(f"segment {entry['segment']}: {miss}")
+    if not broken or len(broken) == len(results):
+        for entry, rms_h in broken:
+            warnings.append(
+                f"segment {entry['segment']}: the georeference misses the log's accuracy "
+                f"by far ({rms_h:.2f} m RMS horizontally where {bound:.2f} m is allowed), "
+                "and no other part of the flight does better: the result is unreliable"
+            )
+        return results, 0
+    for entry, rms_h in broken:
+        warnings.append(
+            f"segment {entry['segment']} left out: after the georeference its cameras are "
+            f"{rms_h:.2f} m RMS horizontally from the log's positions, more than "
+            f"{options.broken_segment_factor:.0f} times the {bound:.2f} m the log's accuracy "
+            "allows (the reconstruction broke there, e.g. after tracking was lost)"
+        )
+        _drop_segment(sparse, entry["segment"])
+    left_out = {id(entry) for entry, _ in broken}
+    return [e for e in results if id(e) not in left_out], len(broken)
 
 
 def _outlier_times(

@@ -52,10 +52,12 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+import rasterio
 
 from worker.pipeline.atomic import atomic_path, write_text_atomic
-from worker.pipeline.dsm_export import DsmOptions, export_dsm
+from worker.pipeline.dsm_export import FILLED_MEASURED, DsmOptions, export_dsm
 from worker.pipeline.errors import InputError
+from worker.pipeline.footprints import overlap_figures, points_inside, survey_footprints
 from worker.pipeline.frames import (
     FrameOptions,
     extract_still_frames,
@@ -89,6 +91,7 @@ from worker.pipeline.pointcloud import (
     write_ply,
 )
 from worker.pipeline.progress import ProgressFn, no_progress
+from worker.pipeline.quality import failed_messages, survey_quality
 from worker.pipeline.reconstruction_results import (
     DsmStageResult,
     FramesResult,
@@ -99,6 +102,7 @@ from worker.pipeline.reconstruction_results import (
     plain,
 )
 from worker.pipeline.sfm import SfmOptions, run_sfm
+from worker.pipeline.slam.densify import DensifyOptions
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
 from worker.pipeline.slam.ties import TieOptions, keyframe_images, tie_flight_lines
@@ -591,7 +595,10 @@ def dsm(
         pts_sparse = pts_sparse[keep]
     progress(0.2)
     gsd = _ground_sampling_distance(sparse)
-    resolution = options.dsm.resolution_m or _snap_125(1.5 * gsd)
+    # Cells of 1.5 GSD, but no finer than the dense points lie: finer cells are mostly
+    # empty between them and the DSM mostly inpainted.
+    spacing = _dense_point_spacing(sparse, gsd, options)
+    resolution = options.dsm.resolution_m or _snap_125(max(1.5 * gsd, spacing))
     out["gsd_m"] = round(gsd, 4)
     # One array for the cloud: the dense points in the map frame, filtered in place, then
     # the sparse ones (fresh memory for millions of points costs more than the copies).
@@ -608,11 +615,22 @@ def dsm(
         n = compact_rows(cloud, keep)
         del keep
     cloud[n : n + len(pts_sparse)] = pts_sparse
-    points = cloud[: n + len(pts_sparse)]
+    n += len(pts_sparse)
+    dsm_options = dataclasses.replace(options.dsm, resolution_m=resolution)
+    # The DSM covers what the cameras saw: points beyond every camera's footprint (a bad
+    # segment, a wrong match) are dropped and cannot stretch the raster.
+    seen = survey_footprints(sparse, resolution)
+    if seen is not None:
+        keep = points_inside(cloud[:n], seen.reach, resolution)
+        out["points_outside_footprint"] = int((~keep).sum())
+        n = compact_rows(cloud, keep)
+        del keep
+        if dsm_options.bounds is None:
+            dsm_options.bounds = seen.bounds(resolution)
+    points = cloud[:n]
     if len(points) < 10:
         raise InputError("the reconstruction has too few points for a DSM")
     progress(0.4)
-    dsm_options = dataclasses.replace(options.dsm, resolution_m=resolution)
     # points.ply is written by a second thread while the DSM is gridded (file writes
     # release the GIL); neither changes `points`.
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ply") as pool:
@@ -621,12 +639,32 @@ def dsm(
         ply.result()
     out["dsm"] = raster.to_dict()
     out["points"] = len(points)
+    if seen is not None:
+        with rasterio.open(raster.filled_mask_path) as src:
+            measured = src.read(1) == FILLED_MEASURED
+            transform = src.transform
+        area, coverage = overlap_figures(seen.views, measured, transform)
+        out["overlap_area_m2"] = round(area, 2)
+        # Judged against its bound by the survey's quality verdict (quality.py), which
+        # warns in the report.
+        out["overlap_coverage"] = None if coverage is None else round(coverage, 4)
     out["seconds"] = round(time.perf_counter() - start, 3)
     result = DsmStageResult(**out)
     _write_result(work_dir, result)
     write_report(work_dir)
     progress(1.0)
     return result
+
+
+def _dense_point_spacing(sparse: SparseMap, gsd: float, options: ReconstructionOptions) -> float:
+    """How far apart an SfM map's dense points lie on the ground: SGBM keeps every
+    `stride`-th pixel of images reduced to `dense_width` (a 4000 px photo at 1280 px and
+    stride 2 gives one point per 6 GSD). 0 for a SLAM map, which densifies at the
+    processing size, one point per 2 GSD, where cells of 1.5 GSD are kept."""
+    if "sfm" not in sparse.stats or sparse.size[0] <= 0:
+        return 0.0
+    scale = min(1.0, options.sfm.dense_width / sparse.size[0])
+    return gsd / scale * DensifyOptions().stride
 
 
 def _ground_sampling_distance(sparse: SparseMap) -> float:
@@ -638,7 +676,10 @@ def _ground_sampling_distance(sparse: SparseMap) -> float:
 
 
 def write_report(work_dir: Path) -> dict[str, Any]:
-    """report.json: what every stage that ran reported, and the headline figures."""
+    """report.json: what every stage that ran reported, the headline figures, the
+    survey's quality verdict (`quality`, see quality.py) and every stage's warnings
+    gathered in `warnings` (what the survey's API answer shows), each check the survey
+    failed among them."""
     work_dir = Path(work_dir)
     stages = {}
     for stage in STAGES:
@@ -647,6 +688,18 @@ def write_report(work_dir: Path) -> dict[str, Any]:
             stages[stage] = json.loads(path.read_text(encoding="utf-8"))
     rec = stages.get("reconstruct", {})
     geo = stages.get("georeference", {})
+    # Every warning of the stages in one list, each once, in stage order: a stage's own
+    # (ingest's holds the flight log's: skipped blocks with their lines, the recording of
+    # a joined SRT that was used) and those of the parts it reports (the log summary, the
+    # time offset, SfM), which repeat some of them.
+    warnings: list[str] = []
+    for result in stages.values():
+        parts = [result, *(v for v in result.values() if isinstance(v, dict))]
+        warnings += [w for part in parts for w in part.get("warnings") or []]
+    # A survey that misses its quality bounds says so in its warnings too, which is what
+    # the survey's API answer and the page show of the report.
+    quality = survey_quality(stages)
+    warnings += failed_messages(quality)
     report = {
         "method": stages.get("ingest", {}).get("method"),
         "crs": geo.get("crs"),
@@ -664,6 +717,8 @@ def write_report(work_dir: Path) -> dict[str, Any]:
             if "photos" in geo
             else {}
         ),
+        "quality": quality,
+        "warnings": list(dict.fromkeys(warnings)),
         "stages": stages,
     }
     _write_json(work_dir / REPORT, report)

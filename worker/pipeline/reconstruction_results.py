@@ -140,4 +140,10 @@ class DsmStageResult(ReconstructionStageResult):
     dense_grid_removed: int | None = field(default=None, metadata=_OPTIONAL)
     dsm: dict[str, Any]
     points: int
+    # when the cameras have ground footprints: the points outside all of them (grown by a
+    # margin), dropped; the area seen by two or more cameras (m²) and the share of its
+    # cells with a measured, not inpainted, height (left out when no cell is seen twice)
+    points_outside_footprint: int | None = field(default=None, metadata=_OPTIONAL)
+    overlap_area_m2: float | None = field(default=None, metadata=_OPTIONAL)
+    overlap_coverage: float | None = field(default=None, metadata=_OPTIONAL)
     seconds: float

@@ -23,6 +23,13 @@ altitude drift; a prior on the cameras' mean optical axis (`ViewPrior`: the logg
 gimbal's, else straight down, as in `georef`) holds it: on simulated consumer-GPS sets
 the heights beyond the flight's mean GPS error went from 4.4 to 0.11 m RMS (median).
 
+Photos that state their own position accuracy (DJI RTK: `RtkStdLon/Lat/Hgt`, the log's
+`position_sigma`) add it to the fit's sigma per photo, so a photo stating none among RTK
+ones counts as stand-alone GPS (`GeorefOptions.standalone_sigma_m`): weighed down
+rather than pulling the fit, and an outlier only beyond its own accuracy. Such a set's
+outlier floor is `photo_rtk_min_outlier_m` instead of metres, and the fit's residuals
+are checked against the stated sigma (`georef.check_stated_accuracy`).
+
 `georeference_photos` is the photo-set counterpart of `georef.georeference`. Residuals
 are model minus GPS, per photo: what the survey report lists.
 """
@@ -45,6 +52,7 @@ from worker.pipeline.georef import (
     GeorefResult,
     MatchedPairs,
     Similarity,
+    check_stated_accuracy,
     match_pairs,
     residual_stats,
     straightness,
@@ -151,6 +159,8 @@ def _weighted_fit(
     down-weighted, a drifting altitude would otherwise tilt the whole fit."""
     sel = weights > 0
     x, y = local[sel], world[sel]
+    if sigmas.ndim == 2:  # per photo
+        sigmas = sigmas[sel]
     sw = np.sqrt(weights[sel])[:, None]
     centre = y.mean(axis=0)
     r0 = init.rotation
@@ -178,9 +188,12 @@ def robust_similarity(
     world: np.ndarray,
     options: RobustFitOptions | None = None,
     view: ViewPrior | None = None,
+    stated: np.ndarray | None = None,
 ) -> RobustFit:
     """Fit world ≈ s R local + t robustly; see the module doc. Needs >= 3 photos.
-    `view`: a prior on where the cameras looked (holds the tilt against altitude drift)."""
+    `view`: a prior on where the cameras looked (holds the tilt against altitude drift).
+    `stated`: (N, 3) each photo's own position sigma (E, N, U), added in quadrature to
+    the fit's sigmas (the returned `sigmas` are the fit's alone)."""
     options = options or RobustFitOptions()
     local = np.asarray(local, dtype=np.float64)
     world = np.asarray(world, dtype=np.float64)
@@ -189,32 +202,39 @@ def robust_similarity(
         raise ValueError("a similarity needs at least three camera positions")
     rng = np.random.default_rng(options.seed)
     model, start = _lmeds_start(local, world, options, rng)
+    extra = np.zeros((n, 3)) if stated is None else np.nan_to_num(np.asarray(stated))
+
+    def per_photo(sigmas: np.ndarray) -> np.ndarray:
+        return np.sqrt(sigmas**2 + extra**2)
+
     weights = np.ones(n)
     d = model.apply(local) - world
     sigmas = _sigmas(d, weights, options)
     for _ in range(options.iterations):
-        r = _normalised(d, sigmas)
+        r = _normalised(d, per_photo(sigmas))
         weights = np.where(r < options.tukey_c, (1.0 - (r / options.tukey_c) ** 2) ** 2, 0.0)
         if (weights > 0).sum() < 3:
             break
-        new = _weighted_fit(local, world, model, weights, sigmas, view)
+        new = _weighted_fit(local, world, model, weights, per_photo(sigmas), view)
         d_new = new.apply(local) - world
         moved = float(np.abs(d_new - d).max())
         model, d = new, d_new
         sigmas = _sigmas(d, weights, options)
         if moved < 1e-4:
             break
-    r = _normalised(d, sigmas)
+    r = _normalised(d, per_photo(sigmas))
+    # A photo is an outlier only beyond its own stated accuracy too (in metres).
     size = np.linalg.norm(d * np.array([1.0, 1.0, sigmas[0] / sigmas[2]]), axis=1)
+    size = size - 3.0 * np.hypot(extra[:, 0], extra[:, 1])
     used = ~((r > options.outlier_threshold) & (size > options.min_outlier_m))
     if used.sum() >= 3:
-        model = _weighted_fit(local, world, model, used.astype(float), sigmas, view)
+        model = _weighted_fit(local, world, model, used.astype(float), per_photo(sigmas), view)
         d = model.apply(local) - world
         sigmas = _sigmas(d, used.astype(float), options)
     return RobustFit(
         similarity=model,
         residuals=d,
-        normalised=_normalised(d, sigmas),
+        normalised=_normalised(d, per_photo(sigmas)),
         used=used,
         sigmas=sigmas,
         start_median=start,
@@ -302,20 +322,34 @@ def georeference_photos(
     view = _view_prior(pairs, options)
     name_of = dict(zip(trajectory.t.tolist(), names, strict=True))
     pair_names = [name_of[t] for t in pairs.t.tolist()]
+    stated = _stated_accuracy(log, pairs.t + offset_s, options)
+    fit_options = RobustFitOptions(
+        vertical_ratio=options.photo_vertical_ratio,
+        outlier_threshold=options.photo_outlier_threshold,
+        min_outlier_m=options.photo_min_outlier_m,
+        seed=options.seed,
+    )
+    if stated is not None:
+        fit_options.min_outlier_m = options.photo_rtk_min_outlier_m
+        # The fit's own sigma (the reconstruction's error) is no longer dwarfed by the
+        # GPS's: the vertical is as good as the stated sigmas say.
+        fit_options.vertical_ratio = max(1.0, float(stated.median[2] / stated.median[0]))
+        fit_options.min_sigma_m = 0.01
     fit = robust_similarity(
-        pairs.local,
-        pairs.world,
-        RobustFitOptions(
-            vertical_ratio=options.photo_vertical_ratio,
-            outlier_threshold=options.photo_outlier_threshold,
-            min_outlier_m=options.photo_min_outlier_m,
-            seed=options.seed,
-        ),
-        view,
+        pairs.local, pairs.world, fit_options, view, None if stated is None else stated.per_photo
     )
     rows = photo_table(pair_names, fit.residuals, fit.used, fit.normalised)
     warnings = [w for w in [outlier_warning(rows)] if w]
     used = fit.used
+    residuals = residual_stats(fit.similarity.apply(pairs.local[used]), pairs.world[used])
+    within = None
+    if stated is not None:
+        # Checked over the photos that state their accuracy (the others are stand-alone).
+        sel = used & stated.stating
+        checked = residual_stats(fit.similarity.apply(pairs.local[sel]), pairs.world[sel])
+        miss = check_stated_accuracy(checked, stated.median, options)
+        within = miss is None
+        warnings += [miss] if miss else []
     return GeorefResult(
         method="robust_photos",
         crs=f"EPSG:{pairs.epsg}",
@@ -327,10 +361,38 @@ def georeference_photos(
         attitude_used=view is not None and pairs.world_rot is not None,
         attitude_source=pairs.attitude_source,
         attitude_disagreement_deg=None,
-        residuals=residual_stats(fit.similarity.apply(pairs.local[used]), pairs.world[used]),
+        residuals=residuals,
         time_offset_s=offset_s,
         warnings=warnings,
         seconds=time.perf_counter() - start,
         sigmas=fit.sigmas,
         photos=rows,
+        stated_sigma=None if stated is None else stated.median,
+        within_stated_accuracy=within,
     )
+
+
+@dataclass
+class StatedAccuracy:
+    """The photos' own position sigmas (an RTK set)."""
+
+    per_photo: np.ndarray  # (M, 3) E, N, U; stand-alone sigmas for photos stating none
+    median: np.ndarray  # (3,) over the photos that state one
+    stating: np.ndarray  # (M,) bool
+
+
+def _stated_accuracy(
+    log: FlightLog, log_t: np.ndarray, options: GeorefOptions
+) -> StatedAccuracy | None:
+    """The photos' stated sigmas when at least half of them state one (an RTK set);
+    else None: every photo alike, the fit's sigmas from its residuals."""
+    stated = log.stated_sigma_at(log_t)
+    if stated is None:
+        return None
+    ok = np.isfinite(stated).all(axis=1)
+    if ok.sum() < 3 or ok.sum() * 2 < len(ok):
+        return None
+    h, v = options.standalone_sigma_m
+    per_photo = stated.copy()
+    per_photo[~ok] = (h, h, v)
+    return StatedAccuracy(per_photo, np.median(stated[ok], axis=0), ok)

@@ -7,7 +7,8 @@ method takes still frames (or an image set) and runs COLMAP's pipeline on 2 core
    on 640 px frames, and `max_features`), one pinhole camera with the known intrinsics
    (a simple pinhole, one focal length, when they are a guess);
 2. GNSS positions as pose priors in the database (local metres around the survey's
-   centre, sigmas `prior_sigma_h_m`/`prior_sigma_v_m`);
+   centre, sigmas `prior_sigma_h_m`/`prior_sigma_v_m`, or the position's own stated
+   sigma where the log states one: RTK photos);
 3. sequential matching (`sequential_overlap` neighbours) plus spatial matching by the
    priors (`spatial_neighbors`, the paper's "pre-matching neighbouring frames based on
    Exif data");
@@ -19,7 +20,9 @@ method takes still frames (or an image set) and runs COLMAP's pipeline on 2 core
    survey at two heights a 23 % wrong guess came to 8 %; nadir images at one height
    hardly constrain it, as focal length and depth trade off);
 5. dense points: OpenCV SGBM on pairs of registered images (`worker.pipeline.slam.densify`,
-   at `dense_width` pixels), because COLMAP's patch-match stereo needs CUDA.
+   at `dense_width` pixels), because COLMAP's patch-match stereo needs CUDA; each image
+   pairs with up to two others chosen by how their ground footprints overlap its own
+   (`_stereo_partners`: along its line and behind it, or on the next line).
 
 The result is a `SparseMap` in UTM coordinates (one segment), like the SLAM's.
 """
@@ -37,6 +40,7 @@ import numpy as np
 import pycolmap
 
 from worker.pipeline.errors import InputError
+from worker.pipeline.footprints import camera_footprints
 from worker.pipeline.georef import log_to_utm, survey_epsg
 from worker.pipeline.ingest.camera import Intrinsics
 from worker.pipeline.ingest.flight_log import FlightLog
@@ -57,6 +61,9 @@ class SfmOptions:
     init_min_tri_angle: float = 4.0
     prior_sigma_h_m: float = 2.0
     prior_sigma_v_m: float = 4.0
+    # RTK photos' priors at their stated sigma, but no tighter than this: below it the
+    # camera centre's offset from the antenna (lever arm) is no longer negligible.
+    min_prior_sigma_m: float = 0.02
     dense: bool = True
     dense_width: int = 1280
     min_model_images: int = 4  # smaller COLMAP models are dropped
@@ -134,9 +141,7 @@ def run_sfm(
         raise InputError("fewer than three images have a GNSS position at their time")
     origin = np.round(np.nanmean(world, axis=0))
     prior_of = {name: world[i] - origin for i, name in enumerate(names) if ok[i]}
-    cov = np.diag(
-        [options.prior_sigma_h_m**2, options.prior_sigma_h_m**2, options.prior_sigma_v_m**2]
-    )
+    cov_of = _prior_covariances(log, np.asarray(times) + offset_s, names, options)
     db = pycolmap.Database.open(database)
     try:
         # COLMAP writes WGS84 priors from EXIF GPS itself: ours (metres, from the log at
@@ -148,7 +153,7 @@ def run_sfm(
             prior = pycolmap.PosePrior()
             prior.corr_data_id = image.data_id
             prior.position = prior_of[image.name]
-            prior.position_covariance = cov
+            prior.position_covariance = cov_of[image.name]
             prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
             db.write_pose_prior(prior)
     finally:
@@ -211,6 +216,23 @@ def run_sfm(
     sparse.stats = {"sfm": report}
     progress(1.0)
     return sparse, report
+
+
+def _prior_covariances(
+    log: FlightLog, log_t: np.ndarray, names: list[str], options: SfmOptions
+) -> dict[str, np.ndarray]:
+    """Each image's pose-prior covariance: the position's own stated sigma where the log
+    states one (RTK photos: centimetres, at least `min_prior_sigma_m`), else the
+    options' stand-alone GNSS sigmas."""
+    default = np.array([options.prior_sigma_h_m, options.prior_sigma_h_m, options.prior_sigma_v_m])
+    stated = log.stated_sigma_at(log_t)
+    out = {}
+    for i, name in enumerate(names):
+        sigma = default
+        if stated is not None and np.isfinite(stated[i]).all():
+            sigma = np.maximum(stated[i], options.min_prior_sigma_m)
+        out[name] = np.diag(sigma**2)
+    return out
 
 
 def _mapping_options(
@@ -285,36 +307,82 @@ def _to_sparse_map(
             pt_id.append(base + pid)
             pt_xyz.append(np.asarray(rec.point3D(pid).xyz) + origin)
             pt_seg.append(seg)
-    n = len(kf_t)
-    r = np.array(kf_r).reshape(n, 3, 3)
-    tr = np.array(kf_tr).reshape(n, 3)
-    t = np.array(kf_t)
-    seg_arr = np.array(kf_seg, dtype=np.int32)
     order = np.argsort(np.array(pt_id, dtype=np.int64))
-    sparse = SparseMap(
-        k=intrinsics.K,
-        size=(intrinsics.width, intrinsics.height),
-        kf_id=np.arange(n, dtype=np.int32),
-        kf_segment=seg_arr,
-        kf_t=t,
-        kf_r=r,
-        kf_tr=tr,
-        obs_kf=np.array(obs_kf, dtype=np.int32),
-        obs_point=np.array(obs_pt, dtype=np.int64),
-        obs_uv=np.array(obs_uv, dtype=np.float32).reshape(-1, 2),
+    sparse = SparseMap.from_keyframes(
+        intrinsics.K,
+        (intrinsics.width, intrinsics.height),
+        t=np.array(kf_t),
+        r=np.array(kf_r),
+        tr=np.array(kf_tr),
+        segment=np.array(kf_seg),
+        obs_kf=np.array(obs_kf),
+        obs_point=np.array(obs_pt),
+        obs_uv=np.array(obs_uv),
         point_id=np.array(pt_id, dtype=np.int64)[order],
         point_xyz=np.array(pt_xyz).reshape(-1, 3)[order],
-        point_segment=np.array(pt_seg, dtype=np.int32)[order],
-        fr_t=t.copy(),
-        fr_segment=seg_arr.copy(),
-        fr_r=r.copy(),
-        fr_tr=tr.copy(),
-        fr_is_kf=np.ones(n, bool),
-        fr_ref_kf=np.arange(n, dtype=np.int32),
-        fr_rel_r=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
-        fr_rel_t=np.zeros((n, 3)),
+        point_segment=np.array(pt_seg)[order],
     )
     return sparse, names
+
+
+# A second partner must add at least this share of the image's footprint: less is not
+# worth an SGBM run (about a second per pair at 1280 px).
+_MIN_NEW_OVERLAP = 0.1
+
+
+def _stereo_partners(
+    sparse: SparseMap, depths: np.ndarray, options: DensifyOptions, max_partners: int = 2
+) -> list[list[int]]:
+    """Per image, up to `max_partners` images to pair it with for dense stereo, chosen by
+    where they look, not by time: photo sets are flown in lines, and an image's best
+    partners are its neighbours along the line and on the next line, whenever they were
+    taken. Candidates share its segment and have a baseline ratio (baseline over its
+    median depth) within the options' bounds. The first partner is the one whose ground
+    footprint overlaps its own most, weighted by how near the ratio is to the target
+    (depth precision); the second the one that adds most of its footprint not yet paired
+    (the other side: behind it on the line, or the other line), if that is at least
+    `_MIN_NEW_OVERLAP` of it. A pair's dense points cover the overlap of its two
+    footprints, so between them the partners cover what the image shares with others."""
+    centres = sparse.kf_centres()
+    views = camera_footprints(sparse)
+    partners: list[list[int]] = []
+    for a in range(len(centres)):
+        chosen: list[int] = []
+        partners.append(chosen)
+        view_a = views[a]
+        if view_a is None or not np.isfinite(depths[a]):
+            continue
+        ratio = np.linalg.norm(centres - centres[a], axis=1) / depths[a]
+        ok = (
+            (sparse.kf_segment == sparse.kf_segment[a])
+            & (ratio >= options.min_baseline_ratio)
+            & (ratio <= options.max_baseline_ratio)
+        )
+        ok[a] = False
+        # How near each ratio is to the target, 1 at the target (a ratio half or twice
+        # the target scores 0.5).
+        quality = np.exp(-np.abs(np.log(np.maximum(ratio, 1e-9) / options.target_baseline_ratio)))
+        shared = {
+            int(b): view_a.intersection(views[b])
+            for b in np.flatnonzero(ok)
+            if views[b] is not None and view_a.intersects(views[b])
+        }
+        covered = None
+        area_a = view_a.area
+        while shared and len(chosen) < max_partners:
+            least = _MIN_NEW_OVERLAP if chosen else 0.0
+            gains = {}
+            for b, part in shared.items():
+                gain = (part if covered is None else part.difference(covered)).area / area_a
+                if gain > 0 and gain >= least:
+                    gains[b] = gain
+            if not gains:
+                break
+            best = max(gains, key=lambda b: gains[b] * quality[b])
+            chosen.append(best)
+            part = shared.pop(best)
+            covered = part if covered is None else covered.union(part)
+    return partners
 
 
 def _densify(
@@ -324,8 +392,7 @@ def _densify(
     intrinsics: Intrinsics,
     options: SfmOptions,
 ) -> None:
-    """SGBM between each image and the neighbour whose baseline is nearest to the
-    target ratio of the depth."""
+    """SGBM between each image and its stereo partners (`_stereo_partners`)."""
     dense_opts = DensifyOptions()
     scale = min(1.0, options.dense_width / intrinsics.width)
     size = (round(intrinsics.width * scale), round(intrinsics.height * scale))
@@ -341,8 +408,9 @@ def _densify(
                 cache.pop(next(iter(cache)))
         return cache[i]
 
-    chunks = []
     n = len(centres)
+    depths = np.full(n, np.nan)
+    depth_range: dict[int, tuple[float, float]] = {}
     for a in range(n):
         sel = sparse.obs_kf == a
         xyz = sparse.point_xyz[np.searchsorted(sparse.point_id, sparse.obs_point[sel])]
@@ -350,31 +418,24 @@ def _densify(
         z = z[z > 0]
         if z.size < 20:
             continue
-        depth = float(np.median(z))
-        best, best_score = None, np.inf
-        for b in range(max(0, a - 6), min(n, a + 7)):
-            if b == a or sparse.kf_segment[b] != sparse.kf_segment[a]:
-                continue
-            ratio = np.linalg.norm(centres[b] - centres[a]) / depth
-            if dense_opts.min_baseline_ratio <= ratio <= dense_opts.max_baseline_ratio:
-                score = abs(np.log(ratio / dense_opts.target_baseline_ratio))
-                if score < best_score:
-                    best, best_score = b, score
-        if best is None:
-            continue
+        depths[a] = float(np.median(z))
         lo, hi = np.percentile(z, [2, 98])
-        pts = densify_pair(
-            gray(a),
-            gray(best),
-            k,
-            (sparse.kf_r[a], sparse.kf_tr[a]),
-            (sparse.kf_r[best], sparse.kf_tr[best]),
-            (lo, hi),
-            dense_opts,
-        )
-        if len(pts):
-            baseline = float(np.linalg.norm(centres[best] - centres[a]))
-            chunks.append((a, best, pts, baseline))
+        depth_range[a] = (float(lo), float(hi))
+    chunks = []
+    for a, chosen in enumerate(_stereo_partners(sparse, depths, dense_opts)):
+        for b in chosen:
+            pts = densify_pair(
+                gray(a),
+                gray(b),
+                k,
+                (sparse.kf_r[a], sparse.kf_tr[a]),
+                (sparse.kf_r[b], sparse.kf_tr[b]),
+                depth_range[a],
+                dense_opts,
+            )
+            if len(pts):
+                baseline = float(np.linalg.norm(centres[b] - centres[a]))
+                chunks.append((a, b, pts, baseline))
     if chunks:
         sparse.dense_kf = np.concatenate([np.full(len(c[2]), c[0], np.int32) for c in chunks])
         sparse.dense_partner = np.concatenate([np.full(len(c[2]), c[1], np.int32) for c in chunks])

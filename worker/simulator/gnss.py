@@ -115,13 +115,18 @@ class GnssTrack:
         return np.stack([np.interp(times, self.t, self.outlier_enu[:, k]) for k in range(3)], -1)
 
     def summary(self) -> dict:
-        e = self.error_enu
-        return {
-            "mode": self.model.mode,
-            "bias_enu_m": [round(float(v), 4) for v in self.bias_enu],
-            "mean_error_enu_m": [round(float(v), 4) for v in e.mean(axis=0)],
-            "rms_error_enu_m": [round(float(v), 4) for v in np.sqrt((e * e).mean(axis=0))],
-        }
+        return error_summary(self.model.mode, self.bias_enu, self.error_enu)
+
+
+def error_summary(mode: str, bias_enu: np.ndarray, error_enu: np.ndarray) -> dict:
+    """A drawn GNSS error's figures for the manifest: its bias, mean and RMS (ENU, m)."""
+    e = error_enu
+    return {
+        "mode": mode,
+        "bias_enu_m": [round(float(v), 4) for v in bias_enu],
+        "mean_error_enu_m": [round(float(v), 4) for v in e.mean(axis=0)],
+        "rms_error_enu_m": [round(float(v), 4) for v in np.sqrt((e * e).mean(axis=0))],
+    }
 
 
 def simulate_gnss(

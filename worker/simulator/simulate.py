@@ -33,8 +33,8 @@ from worker.simulator.gnss import (
     GnssErrorModel,
     ImuErrorModel,
     simulate_attitude_errors,
-    simulate_gnss,
 )
+from worker.simulator.gnss_field import FieldGnssModel, named_gnss_model, simulate_flight_gnss
 from worker.simulator.image_set import ImageMeta, write_dji_jpeg
 from worker.simulator.landslide import SlideSpec
 from worker.simulator.manifest import FORMAT, Manifest
@@ -178,7 +178,7 @@ def _simulate(
     camera = CameraModel.phantom4pro(opts.width, opts.height, kind="video")
     still = CameraModel.phantom4pro(opts.image_width, opts.image_height, kind="still")
     plan = spec.flight_plan(opts.flight, opts.altitude_m, opts.speed_m_s, opts.video_seconds)
-    gnss_model = GnssErrorModel.named(opts.gnss)
+    gnss_model = named_gnss_model(opts.gnss)
     imu_model = ImuErrorModel()
     tz = timedelta(hours=spec.local_utc_offset_h)
     first_local = datetime.fromisoformat(opts.first_local_time)
@@ -553,7 +553,7 @@ def _survey(
     plan,
     home_xy,
     opts: SimulationOptions,
-    gnss_model: GnssErrorModel,
+    gnss_model: GnssErrorModel | FieldGnssModel,
     imu_model: ImuErrorModel,
     rng: np.random.Generator,
     start_local: datetime,
@@ -566,7 +566,11 @@ def _survey(
     flight = build_flight(plan, camera, scene.height_at, home_xy, rng)
     start_utc = start_local - tz
     t_log0, t_log1 = float(flight.t[0]), float(flight.t[-1])
-    gnss = simulate_gnss(gnss_model, t_log0 - 5.0, t_log1 + 5.0, rng)
+    # The field model needs the true track (multipath zones, time-tag slips); the others
+    # draw exactly what they drew before from the same stream.
+    gnss = simulate_flight_gnss(
+        gnss_model, t_log0 - 5.0, t_log1 + 5.0, lambda t: flight.sample(t)["position"], rng
+    )
     att = simulate_attitude_errors(imu_model, t_log0 - 5.0, t_log1 + 5.0, rng)
     home_abs_logged = float(flight.home[2] + gnss.error_at(np.array([t_log0 + 3.0]))[0, 2])
     rec: dict = {
@@ -735,7 +739,7 @@ def _survey(
         lg = logged(photo_times)
         names = []
         run = RenderRun()
-        rtk = gnss_model.mode == "rtk"
+        rtk = isinstance(gnss_model, GnssErrorModel) and gnss_model.mode == "rtk"
         for i, img in enumerate(pool.render(ref, pos, rot, stats=run)):
             name = f"DJI_{i + 1:04d}.JPG"
             names.append(name)

@@ -25,7 +25,11 @@ def _job_of(session: SessionDep, comparison: Comparison) -> Job | None:
 
 @router.post("", response_model=ComparisonCreated, status_code=status.HTTP_202_ACCEPTED)
 def create(
-    body: ComparisonCreate, site: SiteDep, session: SessionDep, celery: CeleryDep
+    body: ComparisonCreate,
+    site: SiteDep,
+    session: SessionDep,
+    celery: CeleryDep,
+    storage: StorageDep,
 ) -> ComparisonCreated:
     """Compare two surveys of this site: queues a job and returns at once."""
     try:
@@ -42,19 +46,23 @@ def create(
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     except QueueUnavailable as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
-    return ComparisonCreated(comparison=comparison_out(comparison, job), job=job_out(job))
+    return ComparisonCreated(comparison=comparison_out(comparison, job, storage), job=job_out(job))
 
 
 @router.get("", response_model=list[ComparisonOut])
-def list_comparisons(site: SiteDep, session: SessionDep) -> list[ComparisonOut]:
+def list_comparisons(
+    site: SiteDep, session: SessionDep, storage: StorageDep
+) -> list[ComparisonOut]:
     query = select(Comparison).where(Comparison.site_id == site.id).order_by(Comparison.id)
-    return [comparison_out(c, _job_of(session, c)) for c in session.scalars(query)]
+    return [comparison_out(c, _job_of(session, c), storage) for c in session.scalars(query)]
 
 
 @router.get("/{comparison_id}", response_model=ComparisonOut)
-def get_comparison(comparison_id: int, site: SiteDep, session: SessionDep) -> ComparisonOut:
+def get_comparison(
+    comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> ComparisonOut:
     comparison = comparison_of_site(session, site, comparison_id)
-    return comparison_out(comparison, _job_of(session, comparison))
+    return comparison_out(comparison, _job_of(session, comparison), storage)
 
 
 @router.get(

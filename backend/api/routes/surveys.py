@@ -6,7 +6,7 @@ from sqlalchemy import select
 
 from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut, SurveyOut
-from backend.api.serializers import product_out
+from backend.api.serializers import product_out, survey_out
 from backend.db.models import Site, Survey
 from backend.services.deletion import StillInUse, delete_survey
 from backend.services.surveys import create_dsm_survey
@@ -21,9 +21,9 @@ def survey_of_site(session: SessionDep, site: Site, survey_id: int) -> Survey:
 
 
 @router.get("", response_model=list[SurveyOut])
-def list_surveys(site: SiteDep, session: SessionDep) -> list[Survey]:
+def list_surveys(site: SiteDep, session: SessionDep, storage: StorageDep) -> list[SurveyOut]:
     query = select(Survey).where(Survey.site_id == site.id).order_by(Survey.captured_at, Survey.id)
-    return list(session.scalars(query))
+    return [survey_out(s, storage) for s in session.scalars(query)]
 
 
 @router.post(
@@ -87,8 +87,10 @@ async def upload_dsm_survey(
 
 
 @router.get("/{survey_id}", response_model=SurveyOut)
-def get_survey(survey_id: int, site: SiteDep, session: SessionDep) -> Survey:
-    return survey_of_site(session, site, survey_id)
+def get_survey(
+    survey_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+) -> SurveyOut:
+    return survey_out(survey_of_site(session, site, survey_id), storage)
 
 
 @router.get("/{survey_id}/products", response_model=list[ProductOut])

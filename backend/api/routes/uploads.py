@@ -23,6 +23,7 @@ from backend.api.deps import CurrentToken, SessionDep, SettingsDep, StorageDep
 from backend.api.schemas_map import UploadOut
 from backend.db.models import Upload, UploadState
 from backend.db.tokens import as_utc
+from backend.services.survey_sources import uploaded_file_warnings
 from backend.services.uploads import (
     CHECKSUM_ALGORITHMS,
     TUS_EXTENSIONS,
@@ -210,4 +211,5 @@ def upload_status(
     upload = _upload(session, upload_id)
     out = UploadOut.model_validate(upload)
     out.offset = current_offset(storage, upload)
+    out.warnings = uploaded_file_warnings(session, upload)
     return out

@@ -2,6 +2,7 @@
 
 import { escapeHtml, formatDate, formatDateTime, formatMetres, parseApiTime } from "../format";
 import type { Survey } from "../types";
+import { surveyQualityHtml, surveyWarningsHtml } from "../warnings";
 
 /** Position (0..1) of each survey along the axis; one survey sits in the middle. */
 export function timelinePositions(surveys: Survey[]): number[] {
@@ -38,6 +39,8 @@ export function renderTimeline(surveys: Survey[], timeZone: string): string {
         <span class="what">${s.kind === "dsm" ? "DSM" : s.kind === "video" ? "video + log" : "photos"} ·
           <span class="status">${STATUS_WORDS[s.status]}</span>${s.resolution_m ? ` · ${formatMetres(s.resolution_m)} pixels` : ""}</span>
         ${s.error ? `<span class="error">${escapeHtml(s.error)}</span>` : ""}
+        ${surveyQualityHtml(s.quality)}
+        ${surveyWarningsHtml(s.warnings)}
       </li>`,
     )
     .join("");

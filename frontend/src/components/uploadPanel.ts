@@ -4,9 +4,10 @@
 import { ApiError, getJson, postJson } from "../api";
 import { escapeHtml, formatBytes, formatPercent, toZonedWallTime, zonedWallTimeToUtc } from "../format";
 import { faststart } from "../faststart";
-import type { Job, MapConfig, Site, Survey } from "../types";
+import type { Job, MapConfig, Site, Survey, SurveyFile } from "../types";
 import { type RunningUpload, startUpload } from "../upload";
 import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey } from "../validation";
+import { fileWarningsHtml } from "../warnings";
 
 type Kind = "dsm" | "video" | "images";
 
@@ -70,6 +71,7 @@ export class UploadPanel {
         <label for="upload-progress" class="visually-hidden">Upload progress</label>
         <progress id="upload-progress" max="1" value="0" hidden></progress>
         <p id="upload-status" role="status" aria-live="polite"></p>
+        <div id="upload-warnings" aria-live="polite"></div>
         <ul id="upload-errors" class="error" role="alert"></ul>
       </form>`;
     const form = this.$("#upload-form") as HTMLFormElement;
@@ -112,8 +114,15 @@ export class UploadPanel {
     this.$("#upload-progress").hidden = !on && (this.$("#upload-progress") as HTMLProgressElement).value === 0;
   }
 
+  /** A notice under each file the server read with warnings (as it now reads them: a log
+   * is read again when its video arrives). */
+  private fileWarnings(files: SurveyFile[]): void {
+    this.$("#upload-warnings").innerHTML = fileWarningsHtml(files);
+  }
+
   private async start(): Promise<void> {
     this.errors([]);
+    this.fileWarnings([]);
     const wall = (this.$("#captured-at") as HTMLInputElement).value;
     const problems: string[] = [];
     const when = checkCapturedAt(wall);
@@ -235,10 +244,11 @@ export class UploadPanel {
     });
     localStorage.setItem(key, String(survey.id));
     this.onSurvey(survey.id);
-    const present = new Set(
-      (await getJson<Array<{ name: string }>>(`sites/${this.site.id}/surveys/${survey.id}/files`)).map((f) => f.name),
-    );
     const id = survey.id;
+    const listFiles = () => getJson<SurveyFile[]>(`sites/${this.site.id}/surveys/${id}/files`);
+    const already = await listFiles();
+    this.fileWarnings(already);
+    const present = new Set(already.map((f) => f.name));
     let submitted = survey.status !== "receiving";
     const submit = async (): Promise<void> => {
       if (submitted) return;
@@ -259,6 +269,7 @@ export class UploadPanel {
       } else {
         await this.sendFile(file, metadata, label);
       }
+      this.fileWarnings(await listFiles());
     }
     await submit();
     if (survey.status === "failed") await this.retryReconstruction(id);

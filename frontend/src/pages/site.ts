@@ -17,6 +17,7 @@ import type {
   Site,
   Survey,
 } from "../types";
+import { comparisonWarningsHtml } from "../warnings";
 import { header, wireSignOut } from "./header";
 
 interface State {
@@ -99,7 +100,8 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
               <button type="button" data-show="${c.id}" ${current}>Show comparison ${c.id} on the map</button>
               <span>${escapeHtml(comparisonLabel(c, state.surveys, site.timezone))}</span>
               <span class="muted">${escapeHtml(c.method)} · <span class="comparison-status">${c.status}</span> · ${summary}</span>
-              ${how ? `<span class="muted comparison-detection">${escapeHtml(how)}</span>` : ""}</li>`;
+              ${how ? `<span class="muted comparison-detection">${escapeHtml(how)}</span>` : ""}
+              ${comparisonWarningsHtml(c.warnings)}</li>`;
           })
           .join("")
       : `<li class="muted">No comparison yet.</li>`;

@@ -60,6 +60,10 @@ class FlightLog:
     datetime_zone: str | None = None
     warnings: list[str] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    # (N, 3) the position's own stated 1-sigma, east/north/up in metres (DJI RTK photos'
+    # RtkStdLon/Lat/Hgt), NaN where the record states none: what a georeference's
+    # residuals are checked against.
+    position_sigma: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -98,6 +102,31 @@ class FlightLog:
 
     def has_attitude(self, *keys: str) -> bool:
         return all(k in self.attitude and np.isfinite(self.attitude[k]).any() for k in keys)
+
+    def stated_sigma_at(self, times: np.ndarray) -> np.ndarray | None:
+        """(M, 3) the stated position sigma of the record nearest each time (NaN where
+        none is stated, or beyond the log), or None when the log states none at all."""
+        if self.position_sigma is None or not np.isfinite(self.position_sigma).any():
+            return None
+        times = np.asarray(times, dtype=np.float64)
+        idx = np.clip(np.searchsorted(self.t, times), 1, max(len(self) - 1, 1))
+        left = np.clip(idx - 1, 0, len(self) - 1)
+        right = np.clip(idx, 0, len(self) - 1)
+        nearest = np.where(
+            np.abs(self.t[left] - times) <= np.abs(self.t[right] - times), left, right
+        )
+        out = self.position_sigma[nearest].astype(np.float64)
+        out[(times < self.t[0] - 1e-6) | (times > self.t[-1] + 1e-6)] = np.nan
+        return out
+
+    def stated_sigma_m(self) -> list[float] | None:
+        """The median stated sigma (east, north, up) over the records that state one."""
+        if self.position_sigma is None:
+            return None
+        ok = np.isfinite(self.position_sigma).all(axis=1)
+        if not ok.any():
+            return None
+        return [round(float(v), 4) for v in np.median(self.position_sigma[ok], axis=0)]
 
     def interpolate(self, times: np.ndarray) -> dict[str, np.ndarray]:
         """Linear interpolation of position, altitude and attitude at `times` (seconds on
@@ -161,6 +190,7 @@ class FlightLog:
                 if valid.any()
                 else None
             ),
+            "stated_sigma_m": self.stated_sigma_m(),
             "warnings": list(self.warnings),
             "meta": self.meta,
         }

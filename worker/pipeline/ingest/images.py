@@ -9,7 +9,9 @@
   `PixelXDimension` (the image width the camera meant; the JPEG's when absent).
 - DJI XMP (`drone-dji:` attributes or child elements, values signed strings like
   "+87.50"): gimbal and flight roll/pitch/yaw, `RelativeAltitude`, `AbsoluteAltitude`,
-  `RtkStdLon`/`RtkStdLat`/`RtkStdHgt`.
+  `RtkFlag` (50 fixed, 34 float, 16 single point, 0 none) and `RtkStdLon`/`RtkStdLat`/
+  `RtkStdHgt`: the position's own 1-sigma, kept as the log's `position_sigma` for the
+  photos whose RTK solution is fixed or float (a single-point fix states nothing useful).
 
 `read_image_set` reads a folder (or a list of files) into an `ImageSet`, whose `log` is
 a `FlightLog` with one sample per geotagged image, so image sets and videos share the
@@ -51,7 +53,11 @@ _XMP_KEYS = {
     "rtkstdlon": "rtk_std_lon",
     "rtkstdlat": "rtk_std_lat",
     "rtkstdhgt": "rtk_std_hgt",
+    "rtkflag": "rtk_flag",
 }
+# DJI's RtkFlag values (position solution types).
+RTK_FIXED = 50
+RTK_FLOAT = 34
 
 
 @dataclass
@@ -311,6 +317,7 @@ def _log_from_images(
         values = np.array([m.xmp.get(key, np.nan) for m in sel])
         if np.isfinite(values).any():
             attitude[key] = values
+    position_sigma = _stated_sigmas(sel, warnings)
     zones = {m.datetime_zone for m in sel}
     datetimes = None
     if timed:
@@ -331,5 +338,45 @@ def _log_from_images(
         time_base="log",
         variant=f"{metas[0].make} {metas[0].model}".strip(),
         warnings=list(warnings),
-        meta={"images": len(metas)},
+        meta={"images": len(metas), **_rtk_counts(sel)},
+        position_sigma=position_sigma,
     )
+
+
+def _rtk_counts(metas: list[ImageMeta]) -> dict[str, Any]:
+    flags = [m.xmp.get("rtk_flag") for m in metas]
+    if all(f is None for f in flags):
+        return {}
+    return {
+        "rtk": {
+            "fixed": sum(f == RTK_FIXED for f in flags),
+            "float": sum(f == RTK_FLOAT for f in flags),
+            "other": sum(f is not None and f not in (RTK_FIXED, RTK_FLOAT) for f in flags),
+            "none": sum(f is None for f in flags),
+        }
+    }
+
+
+def _stated_sigmas(metas: list[ImageMeta], warnings: list[str]) -> np.ndarray | None:
+    """(N, 3) RtkStdLon/Lat/Hgt (east, north, up) of the photos whose RTK solution is
+    fixed or float (or that state a sigma without a flag); NaN for the others."""
+    out = np.full((len(metas), 3), np.nan)
+    for i, m in enumerate(metas):
+        std = [m.xmp.get(k) for k in ("rtk_std_lon", "rtk_std_lat", "rtk_std_hgt")]
+        flag = m.xmp.get("rtk_flag")
+        if any(v is None or not np.isfinite(v) or v <= 0 for v in std):
+            continue
+        if flag is None or flag in (RTK_FIXED, RTK_FLOAT):
+            out[i] = std
+    stated = np.isfinite(out).all(axis=1)
+    if not stated.any():
+        return None
+    counts = _rtk_counts(metas).get("rtk")
+    if counts and counts["fixed"] < len(metas):
+        warnings.append(
+            f"RTK: {counts['fixed']} of {len(metas)} photos have a fixed solution, "
+            f"{counts['float']} a float one and {len(metas) - counts['fixed'] - counts['float']}"
+            " none or single-point: those are weighted by their stated accuracy or, "
+            "stating none, checked as stand-alone GPS"
+        )
+    return out

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import re
-from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -43,19 +42,17 @@ from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.flight_log import ANGLE_KEYS, FlightLog, build_flight_log
 from worker.pipeline.ingest.skipped import RecordError, Skipped, off_earth
 from worker.pipeline.ingest.srt_blocks import (
+    CLOCK,
     DIFFTIME,
     FRAMECNT,
     Block,
     choose_recording,
+    clock_time,
     split_blocks,
     untimed_times,
 )
 from worker.pipeline.ingest.srt_camera import camera_settings
 
-_DATETIME = re.compile(
-    r"(\d{4})[-./](\d{1,2})[-./](\d{1,2})[ T]+(\d{1,2}):(\d{2}):(\d{2})"
-    r"(?:[.,:](\d{1,6}))?(?:[.,:](\d{1,6}))?"
-)
 _BRACKET = re.compile(r"\[([^\]]*)\]")
 _PAIR = re.compile(r"([A-Za-z_][A-Za-z_.]*)\s*:\s*([^\s\],]+)")
 # `[Drone: Yaw:12.3, Pitch:-1.2]`: a subject, then its own key: value pairs.
@@ -115,17 +112,6 @@ def _num(text: str, name: str, line: int, what: str) -> float:
         return float(s)
     except ValueError:
         raise RecordError(name, line, f"{what} {text.strip()!r} is not a number") from None
-
-
-def _datetime(match: re.Match) -> datetime:
-    y, mo, d, h, mi, s, f1, f2 = match.groups()
-    dt = datetime(int(y), int(mo), int(d), int(h), int(mi), int(s))
-    micro = 0
-    if f1:
-        micro = int(f1.ljust(6, "0")) if len(f1) > 3 else int(f1) * 1000
-        if f2 and len(f1) <= 3:
-            micro += int(f2[:3].ljust(3, "0"))
-    return dt + timedelta(microseconds=micro)
 
 
 def _pairs(bracket: str) -> list[tuple[str, str]]:
@@ -199,9 +185,9 @@ def _parse_block(lines: list[tuple[int, str]], name: str, flags: dict[str, Any])
         row.setdefault("line", number)
         _read_brackets(line, number, name, row, flags)
         outside = _BRACKET.sub(" ", line)
-        match = _DATETIME.search(outside)
+        match = CLOCK.search(outside)
         if match:
-            row["datetime"] = _datetime(match)
+            row["datetime"] = clock_time(match)
         _read_gps(outside, number, name, row, flags)
         match = _HOME.search(outside)
         if match and "home" not in flags:

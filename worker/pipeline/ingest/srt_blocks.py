@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,11 @@ _TAG = re.compile(r"<[^>]*>")
 _NUM = r"([-+\u2212]?\d+(?:\.\d+)?)"
 FRAMECNT = re.compile(r"\b(FrameCnt|SrtCnt)\s*:\s*(\d+)", re.IGNORECASE)
 DIFFTIME = re.compile(r"\bDiffTime\s*:\s*" + _NUM + r"\s*ms", re.IGNORECASE)
+# A block's clock time (`2026-07-01 09:00:00,123,456`, `2017.08.05 14:11:51`), local time.
+CLOCK = re.compile(
+    r"(\d{4})[-./](\d{1,2})[-./](\d{1,2})[ T]+(\d{1,2}):(\d{2}):(\d{2})"
+    r"(?:[.,:](\d{1,6}))?(?:[.,:](\d{1,6}))?"
+)
 # Telemetry text that marks an SRT without time ranges (it has bare index lines instead).
 _TELEMETRY = re.compile(r"FrameCnt|SrtCnt|\bGPS\s*\(|\[\s*lat(?:itude)?\s*:", re.IGNORECASE)
 _INDEX = re.compile(r"^\s*\d+\s*$", re.MULTILINE)
@@ -52,6 +58,18 @@ def looks_like_srt(text: str) -> bool:
     if any(TIME_RANGE.match(line) for line in head.split("\n")):
         return True
     return bool(_TELEMETRY.search(head) and _INDEX.search(head))
+
+
+def clock_time(match: re.Match) -> datetime:
+    """The date-time a `CLOCK` match reads (milliseconds and microseconds, when written)."""
+    y, mo, d, h, mi, s, f1, f2 = match.groups()
+    dt = datetime(int(y), int(mo), int(d), int(h), int(mi), int(s))
+    micro = 0
+    if f1:
+        micro = int(f1.ljust(6, "0")) if len(f1) > 3 else int(f1) * 1000
+        if f2 and len(f1) <= 3:
+            micro += int(f2[:3].ljust(3, "0"))
+    return dt + timedelta(microseconds=micro)
 
 
 def _seconds(h: str, m: str, s: str, ms: str) -> float:
@@ -132,6 +150,17 @@ def _duration(recording: list[Block]) -> float:
     return 0.0
 
 
+def _clock_start(recording: list[Block]) -> datetime | None:
+    """The clock time of the recording's first block that has one (DJI writes local
+    time), to tell the recordings apart by when they were flown."""
+    for block in recording:
+        for _, text in block.lines:
+            match = CLOCK.search(text)
+            if match:
+                return clock_time(match)
+    return None
+
+
 def choose_recording(
     blocks: list[Block],
     name: str,
@@ -139,29 +168,52 @@ def choose_recording(
     warnings: list[str],
     meta: dict[str, Any],
 ) -> list[Block]:
-    """The blocks of the recording to use; in a joined file, the choice is warned about."""
+    """The blocks of the recording to use; in a joined file, the choice is warned about,
+    with every recording listed (start, length, blocks, lines) so that the user can tell
+    which one was used and which were set aside."""
     recordings = split_recordings(blocks)
     if len(recordings) == 1:
         return blocks
     durations = [_duration(r) for r in recordings]
-    if video_duration_s:
-        kept = min(range(len(recordings)), key=lambda i: abs(durations[i] - video_duration_s))
-        why = f"its length matches the video's {video_duration_s:.1f} s"
-    else:
-        kept = max(range(len(recordings)), key=lambda i: durations[i])
-        why = "the longest (the video's duration was not given to choose)"
+    starts = [_clock_start(r) for r in recordings]
     spans = [(r[0].line, r[-1].lines[-1][0] if r[-1].lines else r[-1].line) for r in recordings]
     listed = "; ".join(
-        f"{i + 1}: lines {a}-{b}, {d:.1f} s"
-        for i, ((a, b), d) in enumerate(zip(spans, durations, strict=True))
+        f"{i + 1}: "
+        + (f"from {start:%Y-%m-%d %H:%M:%S}, " if start else "")
+        + f"{d:.1f} s, {len(r)} blocks, lines {a}-{b}"
+        for i, (r, start, d, (a, b)) in enumerate(
+            zip(recordings, starts, durations, spans, strict=True)
+        )
     )
-    warnings.append(
-        f"{name}: the file joins {len(recordings)} recordings ({listed}); kept recording "
-        f"{kept + 1}, {why}; the others are not used"
-    )
+    joined = f"{name}: the file joins {len(recordings)} recordings ({listed})"
+    if video_duration_s:
+        kept = min(range(len(recordings)), key=lambda i: abs(durations[i] - video_duration_s))
+        # A second or a tenth of the video either way: the SRT's last block and the video's
+        # last frame do not end together.
+        off = abs(durations[kept] - video_duration_s)
+        if off <= max(1.0, 0.1 * video_duration_s):
+            why = f"its length matches the video's {video_duration_s:.1f} s"
+        else:
+            why = (
+                f"the nearest to the video's {video_duration_s:.1f} s, though {off:.1f} s "
+                "off: check that this log belongs to the video"
+            )
+        warnings.append(f"{joined}; kept recording {kept + 1}: {why}; the others are not used")
+    else:
+        kept = max(range(len(recordings)), key=lambda i: durations[i])
+        warnings.append(
+            f"{joined}, and there is no video to choose by: kept recording {kept + 1}, the "
+            "longest, for now; the others are not used. With the survey's video, the "
+            "recording whose length matches it is used; or upload an SRT of one recording"
+        )
     meta["recordings"] = [
-        {"lines": list(span), "duration_s": round(d, 3)}
-        for span, d in zip(spans, durations, strict=True)
+        {
+            "lines": list(span),
+            "duration_s": round(d, 3),
+            "blocks": len(r),
+            "start": start.isoformat() if start else None,
+        }
+        for r, start, d, span in zip(recordings, starts, durations, spans, strict=True)
     ]
     meta["recording_kept"] = kept + 1
     return recordings[kept]

@@ -56,6 +56,55 @@ class SparseMap:
     dense_baseline: np.ndarray = field(default_factory=lambda: np.empty(0))  # per point
     stats: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_keyframes(
+        cls,
+        k: np.ndarray,
+        size: tuple[int, int],
+        *,
+        t: np.ndarray,
+        r: np.ndarray,
+        tr: np.ndarray,
+        segment: np.ndarray,
+        obs_kf: np.ndarray,
+        obs_point: np.ndarray,
+        obs_uv: np.ndarray,
+        point_id: np.ndarray,
+        point_xyz: np.ndarray,
+        point_segment: np.ndarray,
+    ) -> SparseMap:
+        """A map whose only posed frames are its keyframes (an SfM model: every
+        registered image is a keyframe). Observations and points as the fields say;
+        points must be sorted by id."""
+        n = len(t)
+        r = np.asarray(r, dtype=np.float64).reshape(n, 3, 3)
+        tr = np.asarray(tr, dtype=np.float64).reshape(n, 3)
+        t = np.asarray(t, dtype=np.float64)
+        segment = np.asarray(segment, dtype=np.int32)
+        return cls(
+            k=k,
+            size=size,
+            kf_id=np.arange(n, dtype=np.int32),
+            kf_segment=segment,
+            kf_t=t,
+            kf_r=r,
+            kf_tr=tr,
+            obs_kf=np.asarray(obs_kf, dtype=np.int32),
+            obs_point=np.asarray(obs_point, dtype=np.int64),
+            obs_uv=np.asarray(obs_uv, dtype=np.float32).reshape(-1, 2),
+            point_id=np.asarray(point_id, dtype=np.int64),
+            point_xyz=np.asarray(point_xyz, dtype=np.float64).reshape(-1, 3),
+            point_segment=np.asarray(point_segment, dtype=np.int32),
+            fr_t=t.copy(),
+            fr_segment=segment.copy(),
+            fr_r=r.copy(),
+            fr_tr=tr.copy(),
+            fr_is_kf=np.ones(n, bool),
+            fr_ref_kf=np.arange(n, dtype=np.int32),
+            fr_rel_r=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+            fr_rel_t=np.zeros((n, 3)),
+        )
+
     # -- views ---------------------------------------------------------------------
     @property
     def segments(self) -> list[int]:

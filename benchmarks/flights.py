@@ -1,0 +1,314 @@
+"""Reconstruction over many simulated flights: `slidewatch bench reconstruction --flights N`.
+
+Flight i (seed = first seed + i) draws its conditions from its seed alone
+(`draw_conditions`), so a flight is the same flight in every run and on every machine:
+
+- scenario: paper-mounds or hillslope (alternating in pairs of seeds, or `--scenario`);
+- GNSS: stand-alone or RTK, alternating with the seed so that every scenario has both;
+- flight plan: what the scenario flies (paper-mounds: lawnmower or the paper's 3-D path;
+  hillslope: a terrain-following lawnmower);
+- altitude: paper-mounds 5-20 m (the 3-D path: its low end 5-10 m, rising to 20 m);
+  hillslope 60-150 m;
+- video length (default 20-30 s): the simulator flies the whole plan in that time, so it
+  sets the speed (reported per flight as flown, with whether 20 m/s was not enough);
+- sensor noise (render noise sigma 0.8-3.0 levels: dim light raises it; the simulator
+  has no knob for the sun's elevation, a texture-poor field or rolling shutter);
+- the simulation seed itself: terrain, texture, sun (azimuth, elevation 38-62 deg),
+  exposure, the GNSS and attitude error realisations.
+
+Each flight is simulated (one survey, 640x360 video, RTK or stand-alone logs), then
+reconstructed with `slam` as a user would (for RTK logs with the receiver's stated
+accuracy, 2 / 2 / 4 cm). Recorded per flight: success or the failure's reason (the
+pipeline's refusal or error, or a DSM too far off to co-register onto its truth), DSM
+NMAD against the truth DSM as georeferenced and after shift + tilt co-registration
+(metres and DSM pixels), completeness, trajectory RMSE (after the best similarity, and
+as georeferenced), the georeferencing residuals of georeference.json and whether each
+segment is within the log's stated accuracy, stage times, real-time factor; every
+`--sfm-every`th flight also with `sfm`, for the sfm / slam wall-time ratio.
+benchmarks/flights_summary.py summarises them per scenario and GNSS mode.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from dsm_truth import coregistered_error, dsm_errors, read_truth_trajectory, trajectory_errors
+
+from worker.pipeline.errors import InputError
+from worker.pipeline.reconstruction import (
+    ReconstructionInputs,
+    ReconstructionOptions,
+    reconstruct_survey,
+)
+from worker.simulator.manifest import Manifest
+from worker.simulator.render import RenderOptions
+from worker.simulator.simulate import SimulationOptions, rng_for, simulate_scenario
+
+SCENARIOS = ("paper-mounds", "hillslope")
+GNSS_MODES = ("standalone", "rtk")
+# The receiver's stated 1-sigma accuracy (east, north, up) of an RTK fix, as a user
+# passes it for logs that do not state it (GeorefOptions.position_sigma_m).
+RTK_SIGMA_M = (0.02, 0.02, 0.04)
+PLANS = {"paper-mounds": ("lawnmower", "paper-3d"), "hillslope": ("lawnmower",)}
+ALTITUDE_M = {"paper-mounds": (5.0, 20.0), "hillslope": (60.0, 150.0)}
+# paper-3d climbs from its altitude to 20 m: its low end stays well below that.
+PAPER_3D_ALTITUDE_M = (5.0, 10.0)
+NOISE_SIGMA = (0.8, 3.0)
+
+
+@dataclass(frozen=True)
+class FlightConditions:
+    """What one flight's seed decides."""
+
+    seed: int
+    scenario: str
+    gnss: str
+    plan: str
+    altitude_m: float
+    video_seconds: float
+    noise_sigma: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FlightSettings:
+    """What is the same for every flight of a run."""
+
+    width: int = 640
+    height: int = 360
+    fps: float = 30.0
+    video_seconds: tuple[float, float] = (20.0, 30.0)
+    render_workers: int = 1
+
+
+def draw_conditions(
+    seed: int,
+    scenarios: tuple[str, ...] = SCENARIOS,
+    video_seconds: tuple[float, float] = (20.0, 30.0),
+) -> FlightConditions:
+    """The conditions of the flight with this seed. Scenario and GNSS mode cycle with
+    the seed (every four consecutive seeds cover both scenarios x both modes); the rest
+    is drawn from the seed's own random stream."""
+    scenario = scenarios[((seed - 1) // 2) % len(scenarios)]
+    gnss = GNSS_MODES[(seed - 1) % 2]
+    rng = rng_for(seed, "bench-flight-conditions")
+    plan = str(rng.choice(PLANS[scenario]))
+    lo, hi = PAPER_3D_ALTITUDE_M if plan == "paper-3d" else ALTITUDE_M[scenario]
+    return FlightConditions(
+        seed=seed,
+        scenario=scenario,
+        gnss=gnss,
+        plan=plan,
+        altitude_m=round(float(rng.uniform(lo, hi)), 1),
+        video_seconds=round(float(rng.uniform(*video_seconds)), 1),
+        noise_sigma=round(float(rng.uniform(*NOISE_SIGMA)), 2),
+    )
+
+
+def simulation_options(cond: FlightConditions, settings: FlightSettings) -> SimulationOptions:
+    """One step, one video survey, no extra truth products: only what the flight needs."""
+    return SimulationOptions(
+        seed=cond.seed,
+        steps=1,
+        survey="video",
+        video_seconds=cond.video_seconds,
+        width=settings.width,
+        height=settings.height,
+        fps=settings.fps,
+        flight=cond.plan,
+        altitude_m=cond.altitude_m,
+        gnss=cond.gnss,
+        registration=False,
+        write_ortho=False,
+        workers=settings.render_workers,
+        render=replace(RenderOptions(), noise_sigma=cond.noise_sigma),
+    )
+
+
+def reconstruction_options(method: str, gnss: str) -> ReconstructionOptions:
+    """The options a user gives: the method, and for RTK logs the receiver's accuracy."""
+    options = ReconstructionOptions(method=method)
+    if gnss == "rtk":
+        options.georef.georef.position_sigma_m = RTK_SIGMA_M
+    return options
+
+
+def run_flight(
+    cond: FlightConditions, work: Path, settings: FlightSettings, with_sfm: bool
+) -> dict[str, Any]:
+    """Simulate and reconstruct one flight; its record (see the module doc). The
+    simulation is kept in `work` and reused when the conditions are the same."""
+    sim_dir = work / "sim"
+    stamp = work / "conditions.json"
+    wanted = json.dumps({"conditions": cond.to_dict(), "settings": asdict(settings)})
+    start = time.perf_counter()
+    cached = (sim_dir / "manifest.json").is_file() and stamp.is_file()
+    if not cached or stamp.read_text() != wanted:
+        shutil.rmtree(sim_dir, ignore_errors=True)
+        simulate_scenario(cond.scenario, sim_dir, simulation_options(cond, settings))
+        stamp.write_text(wanted)
+    record: dict[str, Any] = {
+        "conditions": cond.to_dict(),
+        "simulation_seconds": round(time.perf_counter() - start, 1),
+    }
+    manifest = Manifest.load(sim_dir / "manifest.json")
+    survey = manifest.steps[0]["surveys"][0]
+    record["flight"] = _flown(survey)
+    slam = _reconstruct(manifest, survey, work / "slam", "slam", cond.gnss)
+    record["slam"] = slam
+    record["success"] = slam["success"]
+    if with_sfm:
+        sfm = _reconstruct(manifest, survey, work / "sfm", "sfm", cond.gnss)
+        record["sfm"] = {k: sfm[k] for k in ("success", "failure", "wall_seconds") if k in sfm}
+        if slam["success"] and sfm["success"]:
+            record["sfm_over_slam_wall_time"] = round(sfm["wall_seconds"] / slam["wall_seconds"], 2)
+    return record
+
+
+def _flown(survey: dict[str, Any]) -> dict[str, Any]:
+    """What the simulator flew: the speed follows from the plan and the video length."""
+    flight = survey["flight"]
+    return {
+        "speed_m_s": flight["speed_m_s"],
+        "truncated_by_max_speed": flight.get("truncated_by_max_speed"),
+        "lines": flight["lines"],
+        "line_spacing_m": flight["line_spacing_m"],
+        "side_overlap": flight["plan"]["side_overlap"],
+        "altitude_range_m": flight.get("altitude_range_m"),
+        "frames": survey["frames"],
+        "sun": survey.get("sun"),
+        "gnss_mean_error_enu_m": survey["gnss"].get("mean_error_enu_m"),
+    }
+
+
+def _reconstruct(
+    manifest: Manifest, survey: dict[str, Any], run: Path, method: str, gnss: str
+) -> dict[str, Any]:
+    """One reconstruction of the survey and its figures against the truth. A flight the
+    pipeline turns down (InputError) is a failure with its message; so is any other
+    error, with its type, so that one flight does not end the whole benchmark."""
+    shutil.rmtree(run, ignore_errors=True)
+    inputs = ReconstructionInputs(
+        video=str(manifest.resolve(survey["video"])),
+        log=str(manifest.resolve(survey["flight_log_csv"])),
+    )
+    start = time.perf_counter()
+    try:
+        result = reconstruct_survey(inputs, run, reconstruction_options(method, gnss))
+    except InputError as exc:
+        return _failed("input_error", str(exc), start)
+    except Exception as exc:  # reported per flight: see the docstring
+        detail = traceback.format_exception_only(exc)[-1].strip()
+        return _failed("error", detail, start)
+    wall = time.perf_counter() - start
+    out: dict[str, Any] = {"success": True, "wall_seconds": round(wall, 2)}
+    if method != "slam":
+        return out
+    out.update(_against_truth(run, result.results, manifest, survey, wall))
+    return out
+
+
+def _against_truth(
+    run: Path,
+    results: dict[str, Any],
+    manifest: Manifest,
+    survey: dict[str, Any],
+    wall: float,
+) -> dict[str, Any]:
+    """A slam reconstruction's figures against the simulator's truth. A DSM that cannot
+    be co-registered onto its truth (the iterations run out of stable cells: the DSM is
+    far off) makes the flight a failure, with its other figures kept."""
+    truth_dsm = manifest.resolve(manifest.steps[0]["truth"]["dsm"])
+    truth = read_truth_trajectory(manifest.resolve(survey["trajectory"]))
+    report = json.loads((run / "report.json").read_text())
+    dsm = results["dsm"]["dsm"]
+    pixel = float(dsm["resolution_m"])
+    as_georef = dsm_errors(run, truth_dsm)["measured"].get("nmad")
+    out: dict[str, Any] = {
+        "dsm_pixel_m": pixel,
+        "dsm_nmad_as_georeferenced_m": as_georef,
+        "dsm_nmad_as_georeferenced_px": None if as_georef is None else round(as_georef / pixel, 2),
+        "completeness": dsm["completeness"],
+        "trajectory": trajectory_errors(run, truth),
+        "georeference": _georef_residuals(results["georeference"]),
+        "stage_seconds": report["timings_s"],
+        "real_time_factor_reconstruct": report["real_time_factor"],
+        "real_time_factor_pipeline": round(results["reconstruct"]["video_seconds"] / wall, 3),
+        "quality_passed": report["quality"]["passed"],
+        "warnings": report["warnings"],
+    }
+    try:
+        coreg = coregistered_error(run, truth_dsm, pixel)
+    except InputError as exc:
+        out["success"] = False
+        out["failure"] = {"kind": "coregistration", "message": str(exc)[:500]}
+        return out
+    out["dsm_nmad_coregistered_m"] = coreg["nmad_after_m"]
+    out["dsm_nmad_coregistered_px"] = coreg["nmad_px"]
+    out["coregistration_shift_enu_m"] = coreg["shift_enu_m"]
+    return out
+
+
+def _failed(kind: str, message: str, start: float) -> dict[str, Any]:
+    return {
+        "success": False,
+        "failure": {"kind": kind, "message": message[:500]},
+        "wall_seconds": round(time.perf_counter() - start, 2),
+    }
+
+
+def _georef_residuals(geo: dict[str, Any]) -> dict[str, Any]:
+    """Per kept segment: residuals after the adjustment and whether they are within the
+    log's stated accuracy; the worst horizontal RMS over them."""
+    segments = []
+    for seg in geo.get("segments", []):
+        after = seg.get("residuals_after_m") or seg.get("fit", {}).get("residuals_m") or {}
+        segments.append(
+            {
+                "segment": seg.get("segment"),
+                "frames": seg.get("frames"),
+                "rms_h_m": round(math.hypot(after["rms_east"], after["rms_north"]), 4)
+                if "rms_east" in after
+                else None,
+                "rms_up_m": after.get("rms_up"),
+                "within_stated_accuracy": seg.get("within_stated_accuracy"),
+            }
+        )
+    rms_h = [s["rms_h_m"] for s in segments if s["rms_h_m"] is not None]
+    flags = [s["within_stated_accuracy"] for s in segments]
+    return {
+        "segments": segments,
+        "worst_rms_h_m": max(rms_h) if rms_h else None,
+        "all_within_stated_accuracy": all(flags) if flags and None not in flags else None,
+        "time_offset_s": geo.get("time_offset_s"),
+    }
+
+
+def run_flights(
+    seeds: list[int],
+    work_root: Path,
+    settings: FlightSettings,
+    scenarios: tuple[str, ...],
+    sfm_every: int,
+    on_flight: Callable[[list[dict[str, Any]]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Every flight, one after the other (each uses the machine's cores itself);
+    `on_flight(records)` after each, so a long run can save what it has."""
+    records: list[dict[str, Any]] = []
+    for i, seed in enumerate(seeds):
+        cond = draw_conditions(seed, scenarios, settings.video_seconds)
+        with_sfm = sfm_every > 0 and i % sfm_every == 0
+        records.append(run_flight(cond, work_root / f"seed{seed:04d}", settings, with_sfm))
+        if on_flight is not None:
+            on_flight(records)
+    return records

@@ -1,0 +1,82 @@
+"""The many-flight benchmark in one call: flights (benchmarks/flights.py), their summary
+(benchmarks/flights_summary.py), the JSON file and the printed table.
+
+    slidewatch bench reconstruction --flights 20 --json OUT.json [--scenario hillslope]
+        [--video-seconds S] [--first-seed 1] [--sfm-every 5]
+
+The JSON is written again after every flight, so an interrupted run keeps its flights.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+from flights import SCENARIOS, FlightSettings, run_flights
+from flights_summary import TARGETS, summarize, table
+from reconstruction import warm_imports
+
+from worker.pipeline.atomic import write_text_atomic
+
+
+def run(
+    json_path: Path,
+    work_dir: Path,
+    seeds: list[int],
+    scenarios: tuple[str, ...] = (),
+    video_seconds: float | None = None,
+    video: tuple[int, int, float] = (640, 360, 30.0),
+    sfm_every: int = 5,
+) -> dict[str, Any]:
+    """Run the flights of `seeds` and write the report; returns it with its table."""
+    width, height, fps = video
+    settings = FlightSettings(
+        width=width,
+        height=height,
+        fps=fps,
+        video_seconds=(video_seconds, video_seconds) if video_seconds else (20.0, 30.0),
+    )
+    warm_imports()
+    report: dict[str, Any] = {
+        "machine": {"platform": platform.platform(), "python": platform.python_version()},
+        "settings": {
+            "seeds": seeds,
+            "scenarios": list(scenarios or SCENARIOS),
+            "sfm_every": sfm_every,
+            "width": width,
+            "height": height,
+            "fps": fps,
+            "video_seconds": list(settings.video_seconds),
+        },
+        "targets": [t.__dict__ for t in TARGETS],
+    }
+    start = time.perf_counter()
+
+    def save(records: list[dict[str, Any]]) -> None:
+        report["flights"] = records
+        report["summary"] = summarize(records)
+        report["seconds"] = round(time.perf_counter() - start, 1)
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(json_path, json.dumps(report, indent=2))
+        print(f"flight {len(records)}/{len(seeds)}: {_line(records[-1])}", flush=True)
+
+    run_flights(seeds, work_dir, settings, tuple(scenarios or SCENARIOS), sfm_every, save)
+    report["table"] = table(report["summary"])
+    return report
+
+
+def _line(record: dict[str, Any]) -> str:
+    c = record["conditions"]
+    head = f"seed {c['seed']} {c['scenario']} {c['gnss']} {c['plan']} {c['altitude_m']} m"
+    if not record["success"]:
+        return f"{head}: failed ({record['slam']['failure']['message'][:100]})"
+    slam = record["slam"]
+    nmad = slam["dsm_nmad_as_georeferenced_px"]
+    nmad_text = "-" if nmad is None else f"{nmad:.2f}"
+    return (
+        f"{head}: NMAD {nmad_text} px as georeferenced, "
+        f"{slam['dsm_nmad_coregistered_px']:.2f} px co-registered, {slam['wall_seconds']:.0f} s"
+    )

@@ -1,0 +1,221 @@
+"""Summary of the many-flight benchmark (benchmarks/flights.py) per scenario x GNSS mode.
+
+For every figure: median, p90 and worst over the flights that succeeded (worst is the
+largest error, or the smallest completeness / speed); success over all flights (a flight
+fails when the pipeline stops or its DSM cannot be co-registered onto the truth). Each
+target of issue 18 is judged on the statistic it names:
+
+- success >= 95 % (every group);
+- RTK logs: DSM NMAD as georeferenced <= 2 px median and <= 3 px p90;
+- after shift + tilt co-registration: DSM NMAD <= 2 px p90 (either GNSS);
+- hillslope: trajectory RMSE (after the best similarity: the reconstruction's shape;
+  as georeferenced it is the GNSS error's) <= 0.5 m, judged on p90;
+- sfm / slam wall time >= 10 median (the `--sfm-every` subset);
+- real-time factor (video seconds per second of the reconstruct stage) >= 1 median.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One per-flight figure: where it is in a flight record, and which way is worse."""
+
+    name: str
+    get: Callable[[dict[str, Any]], float | None]
+    higher_is_better: bool = False
+
+
+def _slam(key: str) -> Callable[[dict[str, Any]], float | None]:
+    return lambda r: r.get("slam", {}).get(key)
+
+
+FIGURES = (
+    Figure("dsm_nmad_as_georeferenced_px", _slam("dsm_nmad_as_georeferenced_px")),
+    Figure("dsm_nmad_as_georeferenced_m", _slam("dsm_nmad_as_georeferenced_m")),
+    Figure("dsm_nmad_coregistered_px", _slam("dsm_nmad_coregistered_px")),
+    Figure("dsm_nmad_coregistered_m", _slam("dsm_nmad_coregistered_m")),
+    Figure("completeness", _slam("completeness"), higher_is_better=True),
+    Figure(
+        "trajectory_rmse_m",
+        lambda r: r.get("slam", {}).get("trajectory", {}).get("rmse_after_similarity_m"),
+    ),
+    Figure(
+        "trajectory_rmse_georeferenced_m",
+        lambda r: r.get("slam", {}).get("trajectory", {}).get("absolute_rmse_m"),
+    ),
+    Figure(
+        "georef_residual_h_m",
+        lambda r: r.get("slam", {}).get("georeference", {}).get("worst_rms_h_m"),
+    ),
+    Figure(
+        "georef_within_stated_accuracy",
+        lambda r: _as_number(
+            r.get("slam", {}).get("georeference", {}).get("all_within_stated_accuracy")
+        ),
+        higher_is_better=True,
+    ),
+    Figure("slam_wall_s", _slam("wall_seconds")),
+    Figure(
+        "reconstruct_stage_s",
+        lambda r: r.get("slam", {}).get("stage_seconds", {}).get("reconstruct"),
+    ),
+    Figure("real_time_factor", _slam("real_time_factor_reconstruct"), higher_is_better=True),
+    Figure("real_time_factor_pipeline", _slam("real_time_factor_pipeline"), higher_is_better=True),
+    Figure(
+        "sfm_over_slam_wall_time",
+        lambda r: r.get("sfm_over_slam_wall_time"),
+        higher_is_better=True,
+    ),
+)
+
+
+@dataclass(frozen=True)
+class Target:
+    """A bar of the issue on one statistic of one figure, for some groups."""
+
+    figure: str
+    stat: str
+    bound: float
+    higher_is_better: bool = False
+    scenario: str | None = None  # None: every scenario
+    gnss: str | None = None  # None: either GNSS mode
+
+    def applies(self, scenario: str, gnss: str) -> bool:
+        return self.scenario in (None, scenario) and self.gnss in (None, gnss)
+
+    def label(self) -> str:
+        return f"{self.stat} {'>=' if self.higher_is_better else '<='} {self.bound:g}"
+
+
+TARGETS = (
+    Target("success_pct", "all", 95.0, higher_is_better=True),
+    Target("dsm_nmad_as_georeferenced_px", "median", 2.0, gnss="rtk"),
+    Target("dsm_nmad_as_georeferenced_px", "p90", 3.0, gnss="rtk"),
+    Target("dsm_nmad_coregistered_px", "p90", 2.0),
+    Target("trajectory_rmse_m", "p90", 0.5, scenario="hillslope"),
+    Target("sfm_over_slam_wall_time", "median", 10.0, higher_is_better=True),
+    Target("real_time_factor", "median", 1.0, higher_is_better=True),
+)
+
+
+def _as_number(flag: bool | None) -> float | None:
+    return None if flag is None else float(flag)
+
+
+def stats(values: list[float | None], higher_is_better: bool = False) -> dict[str, Any]:
+    """Median, p90 and worst of the values that exist, and how many there are. p90 is
+    the 90th percentile on the worse side (the 10th when higher is better)."""
+    a = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return {"n": 0, "median": None, "p90": None, "worst": None}
+    return {
+        "n": int(a.size),
+        "median": round(float(np.median(a)), 4),
+        "p90": round(float(np.percentile(a, 10 if higher_is_better else 90)), 4),
+        "worst": round(float(a.min() if higher_is_better else a.max()), 4),
+    }
+
+
+def summarize_group(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """One group's success and the statistics of every figure over its successes."""
+    ok = [r for r in records if r.get("success")]
+    return {
+        "flights": len(records),
+        "succeeded": len(ok),
+        "success_pct": round(100.0 * len(ok) / len(records), 1) if records else None,
+        "failures": [
+            {"seed": r["conditions"]["seed"], **r["slam"].get("failure", {})}
+            for r in records
+            if not r.get("success")
+        ],
+        "sfm": _sfm_subset(records),
+        "figures": {f.name: stats([f.get(r) for r in ok], f.higher_is_better) for f in FIGURES},
+    }
+
+
+def _sfm_subset(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The flights also run with sfm: how many, and why sfm failed where it did (the
+    wall-time ratio needs both methods to succeed)."""
+    runs = [r for r in records if "sfm" in r]
+    return {
+        "runs": len(runs),
+        "succeeded": sum(1 for r in runs if r["sfm"]["success"]),
+        "failures": [
+            {"seed": r["conditions"]["seed"], **r["sfm"]["failure"]}
+            for r in runs
+            if not r["sfm"]["success"]
+        ],
+    }
+
+
+def judge(group: dict[str, Any], scenario: str, gnss: str) -> list[dict[str, Any]]:
+    """Each target that applies to the group: its value and met / not met (n/a when the
+    group has no value for it, e.g. no sfm run)."""
+    out = []
+    for t in TARGETS:
+        if not t.applies(scenario, gnss):
+            continue
+        if t.figure == "success_pct":
+            value = group["success_pct"]
+        else:
+            value = group["figures"][t.figure][t.stat]
+        if value is None:
+            status = "n/a"
+        elif t.higher_is_better:
+            status = "met" if value >= t.bound else "not met"
+        else:
+            status = "met" if value <= t.bound else "not met"
+        out.append({"figure": t.figure, "target": t.label(), "value": value, "status": status})
+    return out
+
+
+def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per scenario x GNSS mode ("paper-mounds/rtk" ...): the group and its targets."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in records:
+        c = r["conditions"]
+        groups.setdefault(f"{c['scenario']}/{c['gnss']}", []).append(r)
+    out = {}
+    for key in sorted(groups):
+        scenario, gnss = key.split("/")
+        group = summarize_group(groups[key])
+        group["targets"] = judge(group, scenario, gnss)
+        out[key] = group
+    return out
+
+
+def table(summary: dict[str, Any]) -> str:
+    """The printed table: per group, each figure's median / p90 / worst and the targets."""
+    lines = []
+    for key, group in summary.items():
+        lines.append(
+            f"\n{key}: n={group['flights']}, succeeded {group['succeeded']} "
+            f"({group['success_pct']:.0f} %)"
+        )
+        for failure in group["failures"]:
+            lines.append(f"  failed seed {failure['seed']}: {failure.get('message', '')[:160]}")
+        sfm = group["sfm"]
+        if sfm["runs"]:
+            lines.append(f"  sfm subset: {sfm['succeeded']} of {sfm['runs']} succeeded")
+        for failure in sfm["failures"]:
+            lines.append(f"  sfm failed seed {failure['seed']}: {failure['message'][:160]}")
+        lines.append(f"  {'figure':34s} {'n':>3s} {'median':>9s} {'p90':>9s} {'worst':>9s}")
+        for name, s in group["figures"].items():
+            cells = " ".join(_cell(s[k]) for k in ("median", "p90", "worst"))
+            lines.append(f"  {name:34s} {s['n']:3d} {cells}")
+        for t in group["targets"]:
+            value = "-" if t["value"] is None else f"{t['value']:g}"
+            lines.append(f"  target {t['figure']} {t['target']}: {value} -> {t['status']}")
+    return "\n".join(lines)
+
+
+def _cell(v: float | None) -> str:
+    return f"{'-':>9s}" if v is None else f"{v:9.3f}"

@@ -1,0 +1,121 @@
+"""`slidewatch bench reconstruction --flights N`: conditions from the seed, the summary
+per scenario x GNSS mode, and one tiny flight through the command."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from worker.commands.bench_reconstruction import load_benchmark, reconstruction
+
+flights = load_benchmark("flights")
+flights_summary = load_benchmark("flights_summary")
+
+
+def test_conditions_come_from_the_seed_alone():
+    first = [flights.draw_conditions(seed) for seed in range(1, 41)]
+    again = [flights.draw_conditions(seed) for seed in range(1, 41)]
+    assert first == again
+    # Every four consecutive seeds cover both scenarios with both GNSS modes.
+    assert {(c.scenario, c.gnss) for c in first[:4]} == {
+        (s, g) for s in flights.SCENARIOS for g in flights.GNSS_MODES
+    }
+    for c in first:
+        lo, hi = flights.ALTITUDE_M[c.scenario]
+        assert lo <= c.altitude_m <= hi
+        assert c.plan in flights.PLANS[c.scenario]
+        assert 20.0 <= c.video_seconds <= 30.0
+    assert {c.plan for c in first if c.scenario == "paper-mounds"} == {"lawnmower", "paper-3d"}
+    only = flights.draw_conditions(3, scenarios=("hillslope",), video_seconds=(8.0, 8.0))
+    assert only.scenario == "hillslope" and only.video_seconds == 8.0
+
+
+def test_rtk_flights_are_georeferenced_with_the_receivers_accuracy():
+    rtk = flights.reconstruction_options("slam", "rtk").georef.georef.position_sigma_m
+    assert rtk == flights.RTK_SIGMA_M
+    assert (
+        flights.reconstruction_options("slam", "standalone").georef.georef.position_sigma_m is None
+    )
+    cond = flights.draw_conditions(2)
+    sim = flights.simulation_options(cond, flights.FlightSettings())
+    assert (sim.gnss, sim.altitude_m, sim.flight) == (cond.gnss, cond.altitude_m, cond.plan)
+    assert sim.render.noise_sigma == cond.noise_sigma
+
+
+def _record(seed, gnss, nmad_px, coreg_px, completeness, ok=True, ratio=None):
+    record = {
+        "conditions": {"seed": seed, "scenario": "paper-mounds", "gnss": gnss},
+        "success": ok,
+    }
+    if not ok:
+        record["slam"] = {"success": False, "failure": {"kind": "input_error", "message": "x"}}
+        return record
+    record["slam"] = {
+        "success": True,
+        "dsm_nmad_as_georeferenced_px": nmad_px,
+        "dsm_nmad_coregistered_px": coreg_px,
+        "completeness": completeness,
+        "real_time_factor_reconstruct": 1.5,
+        "trajectory": {"rmse_after_similarity_m": 0.01},
+        "georeference": {"worst_rms_h_m": 0.05, "all_within_stated_accuracy": True},
+    }
+    if ratio is not None:
+        record["sfm"] = {"success": True, "wall_seconds": 60.0}
+        record["sfm_over_slam_wall_time"] = ratio
+    return record
+
+
+def test_summary_gives_median_p90_and_worst_never_the_best():
+    records = [
+        _record(1, "rtk", 1.0, 0.8, 0.95, ratio=12.0),
+        *[_record(s, "rtk", float(s), 1.0, 1.0 - s / 100) for s in range(2, 11)],
+        _record(11, "rtk", None, None, None, ok=False),
+        _record(12, "standalone", 30.0, 1.5, 0.9),
+    ]
+    records[-1]["sfm"] = {"success": False, "failure": {"kind": "error", "message": "moved 2 m"}}
+    summary = flights_summary.summarize(records)
+    assert set(summary) == {"paper-mounds/rtk", "paper-mounds/standalone"}
+    rtk = summary["paper-mounds/rtk"]
+    assert (rtk["flights"], rtk["succeeded"]) == (11, 10)
+    assert rtk["success_pct"] == pytest.approx(90.9)
+    assert rtk["failures"] == [{"seed": 11, "kind": "input_error", "message": "x"}]
+    nmad = rtk["figures"]["dsm_nmad_as_georeferenced_px"]
+    assert (nmad["n"], nmad["median"], nmad["worst"]) == (10, 5.5, 10.0)
+    assert nmad["p90"] == pytest.approx(9.1)
+    # Completeness: higher is better, so the worst is the smallest.
+    assert rtk["figures"]["completeness"]["worst"] == pytest.approx(0.9)
+    status = {(t["figure"], t["target"]): t["status"] for t in rtk["targets"]}
+    assert status[("success_pct", "all >= 95")] == "not met"
+    assert status[("dsm_nmad_as_georeferenced_px", "median <= 2")] == "not met"
+    assert status[("dsm_nmad_coregistered_px", "p90 <= 2")] == "met"
+    assert status[("sfm_over_slam_wall_time", "median >= 10")] == "met"
+    assert status[("real_time_factor", "median >= 1")] == "met"
+    # The RTK-only bars are not applied to stand-alone flights; hillslope's not to these.
+    standalone = {t["target"] for t in summary["paper-mounds/standalone"]["targets"]}
+    assert "median <= 2" not in standalone
+    assert all(t["figure"] != "trajectory_rmse_m" for t in rtk["targets"])
+    assert rtk["sfm"] == {"runs": 1, "succeeded": 1, "failures": []}
+    assert summary["paper-mounds/standalone"]["sfm"]["failures"][0]["seed"] == 12
+    text = flights_summary.table(summary)
+    assert "paper-mounds/rtk: n=11, succeeded 10 (91 %)" in text
+    assert "failed seed 11" in text
+    assert "sfm failed seed 12: moved 2 m" in text
+
+
+def test_one_tiny_flight_through_the_command(tmp_path):
+    out = tmp_path / "flights.json"
+    args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
+    args += ["--scenario", "paper-mounds", "--video-seconds", "4", "--sfm-every", "0"]
+    args += ["--width", "192", "--height", "108", "--fps", "10"]
+    result = CliRunner().invoke(reconstruction, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    (flight,) = data["flights"]
+    assert flight["conditions"]["seed"] == 1 and flight["conditions"]["video_seconds"] == 4.0
+    assert flight["success"] or flight["slam"]["failure"]["message"]
+    (key,) = data["summary"]
+    assert key == "paper-mounds/standalone"
+    assert f"{key}: n=1" in result.output
+    assert "dsm_nmad_coregistered_px" in result.output

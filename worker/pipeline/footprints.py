@@ -1,0 +1,365 @@
+"""Where each camera of a map looks on the ground, and how many cameras see each cell.
+
+A camera's footprint is its image border cast onto a ground plane. Where the camera
+sees (`views`, the overlap figures) the plane is fitted to the sparse points it observes,
+tilted with the slope: on a hillside a horizontal plane puts the uphill edge of the
+footprint too far out and the downhill edge too near, and the overlap area it gives is
+then larger than what the photos share (measured: a hillslope photo set's coverage read
+0.62 with level planes). How far it can see at most (`reach`, the DSM's extent) uses a
+horizontal plane at a low quantile of those heights, since lower ground lies farther out
+along the edge rays. Heights are kept within the range of the whole map's points so that
+a camera of a bad segment, whose points may be anywhere, still gets a footprint near the
+others; a camera without enough observed points uses the heights of the whole map and a
+level plane. Rays that meet the plane far away or not at
+all (an oblique camera's upper rows) are cut at `max_range_factor` times the camera's
+height above the plane, so a camera looking at the horizon has a bounded footprint.
+
+The per-cell view count is rasterised camera by camera into one int16 raster, each
+footprint only over its own window: memory is one raster whatever the number of
+cameras.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import rasterio.features
+import shapely
+from rasterio.transform import Affine
+from rasterio.windows import Window
+from rasterio.windows import transform as window_transform
+from shapely.geometry import Polygon
+from shapely.geometry.base import BaseGeometry
+
+from worker.pipeline.slam.result import SparseMap
+
+# Samples along each image edge: enough to follow a footprint cut at the range limit.
+EDGE_SAMPLES = 8
+# A camera needs this many observed points for its own ground height.
+MIN_OBSERVED_POINTS = 20
+# Below this height above its ground (metres) a camera's footprint is meaningless.
+MIN_CAMERA_HEIGHT_M = 0.5
+
+
+def ground_heights(
+    sparse: SparseMap, quantile: float = 0.5, clip_quantiles: tuple[float, float] = (0.02, 0.98)
+) -> np.ndarray:
+    """Per keyframe: the `quantile` of the heights of the sparse points it observes,
+    within the `clip_quantiles` of all the map's point heights (the whole map's
+    `quantile` where a keyframe observes too few points). NaN without points."""
+    n = sparse.kf_t.size
+    z_all = sparse.point_xyz[:, 2] if sparse.point_xyz.size else np.empty(0)
+    z_all = z_all[np.isfinite(z_all)]
+    if z_all.size == 0:
+        return np.full(n, np.nan)
+    lo, hi = np.quantile(z_all, clip_quantiles)
+    overall = float(np.quantile(z_all, quantile))
+    out = np.full(n, overall)
+    if sparse.obs_kf.size:
+        index = np.searchsorted(sparse.point_id, sparse.obs_point)
+        index = np.clip(index, 0, max(sparse.point_id.size - 1, 0))
+        known = sparse.point_id[index] == sparse.obs_point
+        kf = sparse.obs_kf[known]
+        z = sparse.point_xyz[index[known], 2]
+        order = np.argsort(kf, kind="stable")
+        kf, z = kf[order], z[order]
+        starts = np.searchsorted(kf, np.arange(n + 1))
+        for i in range(n):
+            zi = z[starts[i] : starts[i + 1]]
+            zi = zi[np.isfinite(zi)]
+            if zi.size >= MIN_OBSERVED_POINTS:
+                out[i] = np.quantile(zi, quantile)
+    return np.clip(out, lo, hi)
+
+
+def _border_pixels(width: int, height: int) -> np.ndarray:
+    """Points along the image border, clockwise from the top-left corner, (M, 2)."""
+    s = np.linspace(0.0, 1.0, EDGE_SAMPLES, endpoint=False)
+    w, h = float(width), float(height)
+    top = np.column_stack([s * w, np.zeros_like(s)])
+    right = np.column_stack([np.full_like(s, w), s * h])
+    bottom = np.column_stack([w - s * w, np.full_like(s, h)])
+    left = np.column_stack([np.zeros_like(s), h - s * h])
+    return np.concatenate([top, right, bottom, left])
+
+
+def camera_footprint(
+    k: np.ndarray,
+    size: tuple[int, int],
+    r_cw: np.ndarray,
+    t_cw: np.ndarray,
+    ground_z: float,
+    max_range_factor: float = 4.0,
+    slope: tuple[float, float] = (0.0, 0.0),
+) -> Polygon | None:
+    """The ground polygon one camera (intrinsics `k`, image `size` = width, height,
+    world-to-camera `r_cw`, `t_cw`) sees on the plane through z = `ground_z` below the
+    camera rising by `slope` (dz/dx, dz/dy); None when the camera is not above the plane
+    or sees no ground."""
+    centre = -r_cw.T @ t_cw
+    height = float(centre[2] - ground_z)
+    if not np.isfinite(height) or height < MIN_CAMERA_HEIGHT_M:
+        return None
+    uv = _border_pixels(*size)
+    rays_cam = np.linalg.solve(k, np.column_stack([uv, np.ones(len(uv))]).T)
+    rays = (r_cw.T @ rays_cam).T  # world directions
+    reach = max_range_factor * height
+    # How fast each ray closes on the plane (negative: towards it).
+    closing = rays[:, 2] - slope[0] * rays[:, 0] - slope[1] * rays[:, 1]
+    down = closing < 0
+    # Distance along each ray to the plane; rays that never meet it go to the range limit.
+    t = np.zeros(len(rays))
+    t[down] = -height / closing[down]
+    ground = centre[None, :] + t[:, None] * rays
+    horizontal = np.hypot(rays[:, 0], rays[:, 1])
+    far = ~down | (np.hypot(ground[:, 0] - centre[0], ground[:, 1] - centre[1]) > reach)
+    if far.all():
+        return None
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(horizontal > 0, reach / horizontal, 0.0)
+    ground[far, :2] = centre[None, :2] + scale[far, None] * rays[far, :2]
+    polygon = shapely.make_valid(Polygon(ground[:, :2]))
+    if polygon.is_empty or polygon.area <= 0:
+        return None
+    if not isinstance(polygon, Polygon):
+        polygon = shapely.convex_hull(polygon)
+    return polygon
+
+
+def ground_planes(
+    sparse: SparseMap, clip_quantiles: tuple[float, float] = (0.02, 0.98), max_slope: float = 2.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per keyframe: the ground plane through the sparse points it observes, as (height
+    below the camera (K,), slope dz/dx, dz/dy (K, 2)), fitted by least squares and once
+    more without the points beyond 3 robust sigmas (trees, a wrong match). Heights are
+    kept within the `clip_quantiles` of the map's points, slopes within `max_slope`; a
+    keyframe observing too few points gets the map's median height and a level plane."""
+    heights = ground_heights(sparse, 0.5, clip_quantiles)
+    slopes = np.zeros((sparse.kf_t.size, 2))
+    if not sparse.obs_kf.size or not np.isfinite(heights).any():
+        return heights, slopes
+    z_all = sparse.point_xyz[np.isfinite(sparse.point_xyz[:, 2]), 2]
+    lo, hi = np.quantile(z_all, clip_quantiles)
+    centres = sparse.kf_centres()
+    index = np.clip(np.searchsorted(sparse.point_id, sparse.obs_point), 0, sparse.point_id.size - 1)
+    known = sparse.point_id[index] == sparse.obs_point
+    kf, xyz = sparse.obs_kf[known], sparse.point_xyz[index[known]]
+    order = np.argsort(kf, kind="stable")
+    kf, xyz = kf[order], xyz[order]
+    starts = np.searchsorted(kf, np.arange(sparse.kf_t.size + 1))
+    for i in range(sparse.kf_t.size):
+        pts = xyz[starts[i] : starts[i + 1]]
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) < MIN_OBSERVED_POINTS:
+            continue
+        a = np.column_stack([np.ones(len(pts)), pts[:, :2] - centres[i, :2]])
+        keep = np.ones(len(pts), bool)
+        for _ in range(2):
+            coef = np.linalg.lstsq(a[keep], pts[keep, 2], rcond=None)[0]
+            residual = pts[:, 2] - a @ coef
+            mad = 1.4826 * np.median(np.abs(residual[keep] - np.median(residual[keep])))
+            keep = np.abs(residual) <= max(3.0 * mad, 1e-6)
+            if keep.sum() < MIN_OBSERVED_POINTS:
+                break
+        heights[i] = float(np.clip(coef[0], lo, hi))
+        slopes[i] = np.clip(coef[1:], -max_slope, max_slope)
+    return heights, slopes
+
+
+def camera_footprints(
+    sparse: SparseMap,
+    ground_quantile: float | None = None,
+    max_range_factor: float = 4.0,
+) -> list[Polygon | None]:
+    """Per keyframe of `sparse` (in a metric, z-up frame): its footprint on the ground
+    plane fitted to what it sees, or with `ground_quantile` on the level ground at that
+    quantile of the heights it sees (see the module doc); None where it has none."""
+    if ground_quantile is None:
+        heights, slopes = ground_planes(sparse)
+    else:
+        heights = ground_heights(sparse, ground_quantile)
+        slopes = np.zeros((sparse.kf_t.size, 2))
+    return [
+        camera_footprint(
+            sparse.k,
+            sparse.size,
+            sparse.kf_r[i],
+            sparse.kf_tr[i],
+            heights[i],
+            max_range_factor,
+            (float(slopes[i, 0]), float(slopes[i, 1])),
+        )
+        if np.isfinite(heights[i])
+        else None
+        for i in range(sparse.kf_t.size)
+    ]
+
+
+def _window(geometry: BaseGeometry, transform: Affine, shape: tuple[int, int]) -> Window | None:
+    """The raster window that holds `geometry`, cut to the raster; None if outside."""
+    rows, cols = shape
+    left, bottom, right, top = geometry.bounds
+    col_lo, row_lo = ~transform * (left, top)
+    col_hi, row_hi = ~transform * (right, bottom)
+    col0 = max(int(np.floor(min(col_lo, col_hi))), 0)
+    row0 = max(int(np.floor(min(row_lo, row_hi))), 0)
+    col1 = min(int(np.ceil(max(col_lo, col_hi))) + 1, cols)
+    row1 = min(int(np.ceil(max(row_lo, row_hi))) + 1, rows)
+    if col1 <= col0 or row1 <= row0:
+        return None
+    return Window(col0, row0, col1 - col0, row1 - row0)
+
+
+def rasterise(
+    geometry: BaseGeometry, transform: Affine, shape: tuple[int, int]
+) -> tuple[Window, np.ndarray] | None:
+    """Cells whose centre lies in `geometry`, over the window that holds it: (window,
+    uint8 mask of the window's shape, 1 inside); None when it misses the raster."""
+    window = _window(geometry, transform, shape)
+    if window is None:
+        return None
+    local = window_transform(window, transform)
+    mask = rasterio.features.rasterize(
+        [(geometry, 1)],
+        out_shape=(int(window.height), int(window.width)),
+        transform=local,
+        fill=0,
+        dtype="uint8",
+    )
+    return window, mask
+
+
+def view_count(
+    footprints: Sequence[BaseGeometry | None], transform: Affine, shape: tuple[int, int]
+) -> np.ndarray:
+    """Per cell of the raster (`transform`, `shape` = rows, cols): how many footprints
+    hold its centre (int16: a survey has far fewer than 32767 cameras over one cell)."""
+    count = np.zeros(shape, dtype=np.int16)
+    for polygon in footprints:
+        if polygon is None or polygon.is_empty:
+            continue
+        cut = rasterise(polygon, transform, shape)
+        if cut is None:
+            continue
+        window, mask = cut
+        rows = slice(int(window.row_off), int(window.row_off + window.height))
+        cols = slice(int(window.col_off), int(window.col_off + window.width))
+        count[rows, cols] += mask
+    return count
+
+
+def footprint_union(
+    footprints: Sequence[BaseGeometry | None], margin_m: float = 0.0
+) -> BaseGeometry:
+    """The union of the footprints, grown by `margin_m` (empty if there are none)."""
+    parts = [p for p in footprints if p is not None and not p.is_empty]
+    if not parts:
+        return Polygon()
+    union = shapely.union_all(parts)
+    return union.buffer(margin_m) if margin_m > 0 else union
+
+
+def snapped_bounds(
+    geometry: BaseGeometry, resolution_m: float
+) -> tuple[float, float, float, float]:
+    """The bounds of `geometry` grown to whole multiples of the resolution (the DSM
+    grid's snapping, see dsm_export)."""
+    left, bottom, right, top = geometry.bounds
+    res = float(resolution_m)
+    return (
+        float(np.floor(left / res) * res),
+        float(np.floor(bottom / res) * res),
+        float((np.floor(right / res) + 1) * res),
+        float((np.floor(top / res) + 1) * res),
+    )
+
+
+def grid_of(
+    bounds: tuple[float, float, float, float], resolution_m: float
+) -> tuple[Affine, tuple[int, int]]:
+    """The north-up raster (transform, (rows, cols)) of snapped `bounds`."""
+    left, bottom, right, top = bounds
+    res = float(resolution_m)
+    shape = (round((top - bottom) / res), round((right - left) / res))
+    return Affine(res, 0.0, left, 0.0, -res, top), shape
+
+
+def points_inside(points: np.ndarray, region: BaseGeometry, resolution_m: float) -> np.ndarray:
+    """Which points (N, >= 2) fall into a cell of `resolution_m` whose centre is in
+    `region`: one raster lookup per point instead of a polygon test (millions of points)."""
+    inside = np.zeros(len(points), dtype=bool)
+    if region.is_empty or len(points) == 0:
+        return inside
+    transform, shape = grid_of(snapped_bounds(region, resolution_m), resolution_m)
+    cut = rasterise(region, transform, shape)
+    if cut is None:
+        return inside
+    window, mask = cut
+    local = window_transform(window, transform)
+    col = np.floor((points[:, 0] - local.c) / local.a)
+    row = np.floor((points[:, 1] - local.f) / local.e)
+    ok = (
+        np.isfinite(col)
+        & np.isfinite(row)
+        & (col >= 0)
+        & (col < mask.shape[1])
+        & (row >= 0)
+        & (row < mask.shape[0])
+    )
+    inside[ok] = mask[row[ok].astype(np.int64), col[ok].astype(np.int64)] > 0
+    return inside
+
+
+@dataclass
+class SurveyFootprints:
+    """What the cameras of a survey see: `views`, each keyframe's footprint at the median
+    ground it sees (None where it has none), and `reach`, the union of the footprints at
+    the low ground each sees, grown by `margin_m`: where a point the cameras measured
+    can lie."""
+
+    views: list[Polygon | None]
+    reach: BaseGeometry
+    margin_m: float
+
+    def bounds(self, resolution_m: float) -> tuple[float, float, float, float]:
+        """The DSM's extent: `reach`'s bounds, snapped to the grid."""
+        return snapped_bounds(self.reach, resolution_m)
+
+
+def survey_footprints(
+    sparse: SparseMap,
+    resolution_m: float,
+    margin_fraction: float = 0.05,
+    margin_cells: int = 5,
+    low_ground_quantile: float = 0.05,
+) -> SurveyFootprints | None:
+    """The footprints of `sparse`'s keyframes (see `SurveyFootprints`); the margin is the
+    larger of `margin_fraction` of the median footprint's size (square root of its area:
+    pose and ground-height errors scale with it) and `margin_cells` DSM cells. None when
+    no keyframe has a footprint."""
+    views = camera_footprints(sparse)
+    sizes = [np.sqrt(p.area) for p in views if p is not None]
+    if not sizes:
+        return None
+    margin = max(margin_fraction * float(np.median(sizes)), margin_cells * resolution_m)
+    far = camera_footprints(sparse, ground_quantile=low_ground_quantile)
+    reach = footprint_union([*far, *views], margin)
+    return SurveyFootprints(views=views, reach=reach, margin_m=margin)
+
+
+def overlap_figures(
+    views: Sequence[BaseGeometry | None], measured: np.ndarray, transform: Affine
+) -> tuple[float, float | None]:
+    """(area in m² of the cells of the raster (`transform`, `measured`'s shape) that two
+    or more footprints hold, the fraction of those cells that are `measured`; None
+    when there are none)."""
+    count = view_count(views, transform, measured.shape)
+    overlap = count >= 2
+    del count
+    cells = int(overlap.sum())
+    area = cells * abs(transform.a * transform.e)
+    if cells == 0:
+        return 0.0, None
+    return float(area), float((overlap & measured).sum() / cells)

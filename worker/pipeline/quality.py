@@ -1,0 +1,267 @@
+"""A survey's quality verdict: whether its reconstruction met the bounds a DSM is trusted by.
+
+`survey_quality(stages)` reads the stage results a reconstruction wrote (report.json's
+`stages`, see `reconstruction.write_report`) and answers
+
+    {"passed": bool, "checks": [{"name", "value", "bound", "passed", "message"}]}
+
+with one entry per check that applies to the survey (a check whose figure the survey has
+not got, such as the stated accuracy of a stand-alone GPS log, is not made):
+
+- `georeference_accuracy`: the georeference fits the positions within the accuracy the
+  log states (RTK); its own check (`georef.check_stated_accuracy`) decides, this one
+  reports the worst segment's horizontal RMS residual against its bound.
+- `georeference_residual`: for logs stating no accuracy, the horizontal RMS distance
+  between the placed cameras and their logged positions, after the georeference.
+- `overlap_coverage`: the share of the area seen by two or more cameras with measured,
+  not inpainted, heights (the dsm stage's `overlap_coverage`).
+- `segments_dropped`: flight segments the georeference could not place and left out;
+  passes while one remains (with none the job fails), its message says how many went.
+- `photo_outliers`: the share of a photo set's photos whose GPS was left out as wrong.
+
+A survey that misses a bound is still a DSM: the verdict says how far to trust it, and
+the report lists every failed check's message among its warnings, so no miss is silent.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from worker.pipeline.georef import GeorefOptions, accuracy_bounds
+
+# The georeference's own warning for a segment it could not fit (georef_map.py).
+_SEGMENT_LEFT_OUT = re.compile(r"^segment (\d+) left out\b")
+
+
+@dataclass(frozen=True)
+class QualityBounds:
+    """What a survey must meet to pass; each bound says why it sits where it does."""
+
+    # A fit may miss the log's stated (RTK) accuracy by this factor plus this allowance
+    # for the reconstruction's own error: the georeference's defaults, so the verdict
+    # shows the bound the georeference checked against.
+    stated_accuracy_factor: float = GeorefOptions.stated_accuracy_factor
+    reconstruction_allowance_m: float = GeorefOptions.reconstruction_allowance_m
+    # Logs stating no accuracy (stand-alone GPS): the fit absorbs the GNSS bias, and what
+    # is left is the drift within the flight, about 0.5-1 m; residuals of several metres
+    # mean a distorted reconstruction or a wrong log rather than GPS noise.
+    max_standalone_residual_m: float = 5.0
+    # Below this share of measured cells where two or more cameras overlap, the DSM there
+    # is mostly interpolated, and a change detected there mostly guessed (issue 17's bar).
+    min_overlap_coverage: float = 0.8
+    # The robust photo fit names a few wrong GPS fixes; when more than this share of the
+    # photos is wrong the remaining ones are suspect too (bad reception, a wrong log).
+    max_photo_outlier_share: float = 0.2
+
+
+def survey_quality(
+    stages: dict[str, dict[str, Any]], bounds: QualityBounds | None = None
+) -> dict[str, Any]:
+    """The verdict over the stage results `stages` (stage name -> its `<stage>.json`)."""
+    bounds = bounds or QualityBounds()
+    geo = stages.get("georeference") or {}
+    dsm = stages.get("dsm") or {}
+    segments = geo.get("segments") or []
+    found = [
+        _accuracy_check(segments, bounds),
+        _residual_check(segments, bounds),
+        _overlap_check(dsm, bounds),
+        _segments_check(geo, segments) if geo else None,
+        _photo_check(geo.get("photos"), bounds),
+    ]
+    checks = [c for c in found if c is not None]
+    return {"passed": all(c["passed"] for c in checks), "checks": checks}
+
+
+def failed_messages(quality: dict[str, Any]) -> list[str]:
+    """The messages of the checks a verdict failed, in check order."""
+    return [c["message"] for c in quality["checks"] if not c["passed"]]
+
+
+def _check(
+    name: str, value: float | None, bound: float | None, passed: bool, message: str
+) -> dict[str, Any]:
+    return {
+        "name": name,
+        "value": None if value is None else round(float(value), 4),
+        "bound": None if bound is None else round(float(bound), 4),
+        "passed": bool(passed),
+        "message": message,
+    }
+
+
+def _horizontal(residuals: dict[str, Any] | None) -> float | None:
+    """The horizontal RMS of a residual table (rms_east, rms_north); None without one."""
+    if not residuals or residuals.get("rms_east") is None or residuals.get("rms_north") is None:
+        return None
+    return math.hypot(residuals["rms_east"], residuals["rms_north"])
+
+
+def _segment_words(segment: dict[str, Any], count: int) -> str:
+    """' (segment 2)' where the survey has several segments, else ''."""
+    return f" (segment {segment.get('segment')})" if count > 1 else ""
+
+
+def _accuracy_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> dict[str, Any] | None:
+    georef = GeorefOptions(
+        stated_accuracy_factor=bounds.stated_accuracy_factor,
+        reconstruction_allowance_m=bounds.reconstruction_allowance_m,
+    )
+    rows = []
+    for seg in segments:
+        fit = seg.get("fit") or {}
+        # A video segment is checked after the adjustment (georef_map._check_segments),
+        # a photo set by its robust fit (robust_fit.georeference_photos).
+        if seg.get("within_stated_accuracy") is not None:
+            within, stated = seg["within_stated_accuracy"], seg.get("stated_sigma_m")
+            residuals = seg.get("residuals_after_m")
+        else:
+            within, stated = fit.get("within_stated_accuracy"), fit.get("stated_sigma_m")
+            residuals = fit.get("residuals_m")
+        rms_h = _horizontal(residuals)
+        if within is None or not stated or rms_h is None:
+            continue  # the log states no accuracy here: georeference_residual's case
+        bound_h, bound_v = accuracy_bounds(stated, georef)
+        rms_v = (residuals or {}).get("rms_up")
+        rows.append((bool(within), rms_h, bound_h, rms_v, bound_v, seg))
+    if not rows:
+        return None
+    # The failing segment furthest off its bound, else the closest to it.
+    _, rms_h, bound_h, rms_v, bound_v, seg = max(rows, key=lambda r: (not r[0], r[1] / r[2]))
+    passed = all(r[0] for r in rows)
+    where = _segment_words(seg, len(segments))
+    if passed:
+        message = (
+            f"The survey is as accurate as its flight log states{where}: the cameras and "
+            f"their logged positions differ by {rms_h:.2f} m (horizontal RMS), within the "
+            f"{bound_h:.2f} m the stated accuracy allows."
+        )
+    elif rms_h > bound_h:
+        message = (
+            f"The survey is less accurate than its flight log states{where}: the cameras and "
+            f"their logged positions differ by {rms_h:.2f} m (horizontal RMS) where the "
+            f"stated accuracy allows {bound_h:.2f} m. The reconstruction is distorted or "
+            "some logged positions are wrong; the DSM may be off by that much."
+        )
+    elif rms_v is not None and rms_v > bound_v:
+        message = (
+            f"The survey is less accurate than its flight log states{where}: the cameras' "
+            f"heights and their logged ones differ by {rms_v:.2f} m (vertical RMS) where the "
+            f"stated accuracy allows {bound_v:.2f} m (horizontally {rms_h:.2f} m of "
+            f"{bound_h:.2f} m). The reconstruction is distorted or some logged heights are "
+            "wrong; the DSM's heights may be off by that much."
+        )
+    else:
+        # The georeference checks only the positions that state an accuracy; the fit's
+        # figures here are over all its positions, and may stay within the bounds.
+        message = (
+            f"The survey is less accurate than its flight log states{where}: the logged "
+            "positions that state an accuracy are further from the reconstruction than "
+            f"{bounds.stated_accuracy_factor:g} times that accuracy allows (over all "
+            f"positions {rms_h:.2f} m horizontal RMS, allowed {bound_h:.2f} m). The "
+            "reconstruction is distorted or some logged positions are wrong."
+        )
+    return _check("georeference_accuracy", rms_h, bound_h, passed, message)
+
+
+def _residual_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> dict[str, Any] | None:
+    rows = []
+    for seg in segments:
+        stated = seg.get(
+            "within_stated_accuracy", (seg.get("fit") or {}).get("within_stated_accuracy")
+        )
+        if stated is not None:
+            continue  # checked against the log's own stated accuracy instead
+        rms_h = _horizontal(seg.get("residuals_after_m"))
+        if rms_h is not None:
+            rows.append((rms_h, seg))
+    if not rows:
+        return None
+    rms_h, seg = max(rows, key=lambda r: r[0])
+    bound = bounds.max_standalone_residual_m
+    passed = rms_h <= bound
+    where = _segment_words(seg, len(segments))
+    if passed:
+        message = (
+            f"The placed cameras agree with the logged GPS positions to {rms_h:.2f} m "
+            f"(horizontal RMS){where}, within the {bound:.1f} m allowed for stand-alone GPS."
+        )
+    else:
+        message = (
+            f"The survey may be distorted or its flight log wrong: the placed cameras are "
+            f"{rms_h:.2f} m (horizontal RMS) from the logged GPS positions{where}, more than "
+            f"the {bound:.1f} m allowed for stand-alone GPS (whose drift within a flight is "
+            "about 1 m)."
+        )
+    return _check("georeference_residual", rms_h, bound, passed, message)
+
+
+def _overlap_check(dsm: dict[str, Any], bounds: QualityBounds) -> dict[str, Any] | None:
+    coverage = dsm.get("overlap_coverage")
+    if coverage is None:
+        return None  # no footprints, no cell seen twice, or a result from before the figure
+    bound = bounds.min_overlap_coverage
+    passed = coverage >= bound
+    if passed:
+        message = (
+            f"{coverage:.0%} of the area seen by two or more cameras has measured heights "
+            f"(at least {bound:.0%} needed)."
+        )
+    else:
+        message = (
+            f"Only {coverage:.0%} of the area seen by two or more cameras has measured "
+            f"heights, below the {bound:.0%} needed: the rest of the DSM there is filled "
+            "in or missing, and changes found there are uncertain."
+        )
+    return _check("overlap_coverage", coverage, bound, passed, message)
+
+
+def _segments_check(geo: dict[str, Any], segments: list[dict[str, Any]]) -> dict[str, Any]:
+    dropped = [w for w in geo.get("warnings") or [] if _SEGMENT_LEFT_OUT.match(w)]
+    kept = len(segments)
+    total = kept + len(dropped)
+    passed = kept >= 1
+    if not dropped:
+        message = (
+            "The flight's one segment was placed on the ground."
+            if total == 1
+            else f"All {total} flight segments were placed on the ground."
+        )
+    else:
+        message = (
+            f"{len(dropped)} of {_count(total, 'flight segment')} could not be placed on "
+            f"the ground and {'was' if len(dropped) == 1 else 'were'} left out: the DSM "
+            f"shows only what the other {kept} covered."
+        )
+    return _check("segments_dropped", float(len(dropped)), None, passed, message)
+
+
+def _photo_check(
+    photos: list[dict[str, Any]] | None, bounds: QualityBounds
+) -> dict[str, Any] | None:
+    if not photos:
+        return None  # a video survey
+    outliers = sum(1 for p in photos if p.get("status") == "outlier")
+    share = outliers / len(photos)
+    bound = bounds.max_photo_outlier_share
+    passed = share <= bound
+    figures = f"{outliers} of {_count(len(photos), 'photo')} ({share:.0%})"
+    if passed:
+        message = (
+            f"{figures} had GPS positions that disagree with the others and were left out "
+            f"of the georeference, within the {bound:.0%} allowed."
+        )
+    else:
+        message = (
+            f"{figures} had GPS positions that disagree with the others and were left out "
+            f"of the georeference, more than the {bound:.0%} allowed: the GPS of the "
+            "remaining photos is suspect too (bad reception or a wrong log)."
+        )
+    return _check("photo_outliers", share, bound, passed, message)
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
