@@ -92,6 +92,12 @@ def test_two_overlapping_cameras_give_the_known_overlap_area():
     area, coverage = overlap_figures(views, measured, transform)
     assert area == pytest.approx(2000.0)
     assert coverage == pytest.approx(0.5)
+    # A DSM only as wide as its points (x 30 .. 170, all measured): the shared strip west
+    # of it was seen twice yet has no height, and counts so.
+    east = Affine(1.0, 0.0, 30.0, 0.0, -1.0, 30.0)
+    area, coverage = overlap_figures(views, np.ones((60, 140), bool), east)
+    assert area == pytest.approx(2000.0)
+    assert coverage == pytest.approx(0.5)
 
 
 def test_points_inside_a_region_by_cell():
@@ -166,9 +172,10 @@ def test_a_far_point_does_not_stretch_the_dsm(tmp_path):
     assert result.points_outside_footprint == 1
     assert result.points == len(ground)
     left, bottom, right, top = result.dsm["bounds"]
-    # The union of the footprints, x -50..110 and y -25..25, grown by its small margin.
-    assert -60.0 <= left <= -50.0 and 110.0 <= right <= 120.0
-    assert -35.0 <= bottom <= -25.0 and 25.0 <= top <= 35.0
+    # The ground's extent, inside the union of the footprints (x -50..110, y -25..25):
+    # not stretched to the far point.
+    assert -51.0 <= left <= -50.0 and 109.0 <= right <= 111.0
+    assert -26.0 <= bottom <= -25.0 and 24.0 <= top <= 26.0
     assert result.overlap_area_m2 == pytest.approx(40.0 * 50.0)
     assert result.overlap_coverage == pytest.approx(1.0)
     stored = json.loads((tmp_path / "dsm.json").read_text())

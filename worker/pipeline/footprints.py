@@ -323,10 +323,6 @@ class SurveyFootprints:
     reach: BaseGeometry
     margin_m: float
 
-    def bounds(self, resolution_m: float) -> tuple[float, float, float, float]:
-        """The DSM's extent: `reach`'s bounds, snapped to the grid."""
-        return snapped_bounds(self.reach, resolution_m)
-
 
 def survey_footprints(
     sparse: SparseMap,
@@ -352,14 +348,28 @@ def survey_footprints(
 def overlap_figures(
     views: Sequence[BaseGeometry | None], measured: np.ndarray, transform: Affine
 ) -> tuple[float, float | None]:
-    """(area in m² of the cells of the raster (`transform`, `measured`'s shape) that two
-    or more footprints hold, the fraction of those cells that are `measured`; None
-    when there are none)."""
-    count = view_count(views, transform, measured.shape)
+    """(area in m² seen by two or more footprints, the fraction of it that `measured`
+    (a north-up raster, `transform`) holds; None when no cell is seen twice). Counted on
+    a grid of the raster's cells grown to hold every footprint: overlap outside the
+    raster (where no point was kept) counts as not measured."""
+    union = footprint_union(views)
+    if union.is_empty:
+        return 0.0, None
+    res = float(transform.a)
+    left, bottom, right, top = union.bounds
+    # Whole cells of the raster's grid, extended to the footprints' bounds.
+    col0 = int(np.floor((left - transform.c) / res))
+    col1 = int(np.ceil((right - transform.c) / res))
+    row0 = int(np.floor((transform.f - top) / res))
+    row1 = int(np.ceil((transform.f - bottom) / res))
+    col0, row0 = min(col0, 0), min(row0, 0)
+    col1, row1 = max(col1, measured.shape[1]), max(row1, measured.shape[0])
+    grid = transform * Affine.translation(col0, row0)
+    count = view_count(views, grid, (row1 - row0, col1 - col0))
     overlap = count >= 2
     del count
     cells = int(overlap.sum())
-    area = cells * abs(transform.a * transform.e)
     if cells == 0:
         return 0.0, None
-    return float(area), float((overlap & measured).sum() / cells)
+    inside = overlap[-row0 : -row0 + measured.shape[0], -col0 : -col0 + measured.shape[1]]
+    return float(cells * res * res), float((inside & measured).sum() / cells)

@@ -618,15 +618,15 @@ def dsm(
     n += len(pts_sparse)
     dsm_options = dataclasses.replace(options.dsm, resolution_m=resolution)
     # The DSM covers what the cameras saw: points beyond every camera's footprint (a bad
-    # segment, a wrong match) are dropped and cannot stretch the raster.
+    # segment, a wrong match) are dropped and cannot stretch the raster, whose extent is
+    # then that of the points kept (the footprints' own reach is wider: a raster of it
+    # would be mostly empty at its edges).
     seen = survey_footprints(sparse, resolution)
     if seen is not None:
         keep = points_inside(cloud[:n], seen.reach, resolution)
         out["points_outside_footprint"] = int((~keep).sum())
         n = compact_rows(cloud, keep)
         del keep
-        if dsm_options.bounds is None:
-            dsm_options.bounds = seen.bounds(resolution)
     points = cloud[:n]
     if len(points) < 10:
         raise InputError("the reconstruction has too few points for a DSM")

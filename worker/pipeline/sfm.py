@@ -66,6 +66,11 @@ class SfmOptions:
     min_prior_sigma_m: float = 0.02
     dense: bool = True
     dense_width: int = 1280
+    # Rectification keeping half the pixels alpha 0 crops (see DensifyOptions): measured
+    # on simulated photo sets, the overlap's measured share went 0.85 -> 0.92 (mounds, 69
+    # photos) and 0.72 -> 0.79 (hillslope, 24 photos, 4 in a turn) for NMAD against the
+    # truth 6 -> 7 mm and 0.57 -> 0.60 m (the cameras moved onto the truth).
+    dense_rectify_alpha: float = 0.5
     min_model_images: int = 4  # smaller COLMAP models are dropped
     min_inliers: int = 20  # to register an image (twice that for the first pair)
     threads: int = 2
@@ -393,7 +398,7 @@ def _densify(
     options: SfmOptions,
 ) -> None:
     """SGBM between each image and its stereo partners (`_stereo_partners`)."""
-    dense_opts = DensifyOptions()
+    dense_opts = DensifyOptions(rectify_alpha=options.dense_rectify_alpha)
     scale = min(1.0, options.dense_width / intrinsics.width)
     size = (round(intrinsics.width * scale), round(intrinsics.height * scale))
     k = intrinsics.scaled(*size).K

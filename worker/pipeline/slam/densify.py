@@ -35,6 +35,10 @@ class DensifyOptions:
     speckle_range: int = 2
     depth_margin: float = 1.3  # search depths within [zmin / m, zmax * m] of the map
     max_disparities: int = 256
+    # stereoRectify's alpha: 0 keeps only pixels valid in both rectified images (video
+    # keyframes, turned little between them, lose almost nothing); up to 1 keeps every
+    # source pixel, which photos turned by tens of degrees (a turn) need.
+    rectify_alpha: float = 0.0
 
 
 def _rotated_k(k: np.ndarray, height: int) -> np.ndarray:
@@ -81,7 +85,7 @@ def densify_pair(
         r_ba,
         t_ba.reshape(3, 1),
         flags=cv2.CALIB_ZERO_DISPARITY,
-        alpha=0,
+        alpha=options.rectify_alpha,
     )
     map1 = cv2.initUndistortRectifyMap(k_used, dist, r1, p1, (w, h), cv2.CV_32FC1)
     map2 = cv2.initUndistortRectifyMap(k_used, dist, r2, p2, (w, h), cv2.CV_32FC1)
