@@ -44,6 +44,7 @@ from __future__ import annotations
 import json
 import time
 import zlib
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -118,19 +119,26 @@ def _seed_rng(seed: int, model: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(model.encode())]))
 
 
-def run_seed(
-    seed: int,
-    lines: int,
-    per_line: int,
-    spacing_m: float,
-    interval_s: float,
-    speed_m_s: float,
-    sfm_noise_m: float,
-    model: str = "consumer",
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class PhotoSurvey:
+    """The simulated photo flight: `lines` lines of `photos_per_line` photos,
+    `line_spacing_m` apart, one photo every `interval_s` at `speed_m_s`, and the SfM
+    stand-in's noise."""
+
+    lines: int = 4
+    photos_per_line: int = 10
+    line_spacing_m: float = 40.0
+    interval_s: float = 2.0
+    speed_m_s: float = 8.0
+    sfm_noise_m: float = 0.1
+
+
+def run_seed(seed: int, plan: PhotoSurvey, model: str = "consumer") -> dict[str, Any]:
     """One simulated photo set under GNSS `model`, both fits; figures in metres."""
     rng = _seed_rng(seed, model)
-    times, true, heads = _survey(lines, per_line, spacing_m, interval_s, speed_m_s)
+    times, true, heads = _survey(
+        plan.lines, plan.photos_per_line, plan.line_spacing_m, plan.interval_s, plan.speed_m_s
+    )
     gnss = simulate_flight_gnss(model_of(model), -5.0, times[-1] + 5.0, _track(times, true), rng)
     err = gnss.error_at(times)
     gross = np.hypot(*gnss.outlier_at(times)[:, :2].T)
@@ -148,7 +156,7 @@ def run_seed(
     rot = Rotation.random(random_state=seed).as_matrix()
     scale = float(rng.uniform(0.02, 0.5))
     shift = rng.normal(0.0, 10.0, 3)
-    noisy = true + rng.normal(0.0, sfm_noise_m, true.shape)
+    noisy = true + rng.normal(0.0, plan.sfm_noise_m, true.shape)
     local = ((noisy - true.mean(axis=0)) @ rot) * scale + shift
     r_local = np.einsum(
         "ji,njk->nik", rot, rotation_world_from_camera(heads, -90.0, np.zeros_like(heads))
@@ -239,28 +247,11 @@ def print_block(model: str, block: dict[str, Any], seeds: int, seconds: float) -
     )
 
 
-def _run_fast(
-    models: list[str],
-    seeds: int,
-    lines: int,
-    per_line: int,
-    spacing_m: float,
-    interval_s: float,
-    speed_m_s: float,
-    sfm_noise_m: float,
-) -> dict[str, Any]:
+def _run_fast(models: list[str], seeds: int, plan: PhotoSurvey) -> dict[str, Any]:
     """The georeferencing-only bench over `seeds` seeds per model; prints its figures."""
     start = time.perf_counter()
     result: dict[str, Any] = {
-        "options": {
-            "seeds": seeds,
-            "lines": lines,
-            "photos_per_line": per_line,
-            "line_spacing_m": spacing_m,
-            "interval_s": interval_s,
-            "speed_m_s": speed_m_s,
-            "sfm_noise_m": sfm_noise_m,
-        },
+        "options": {"seeds": seeds, **asdict(plan)},
         "note": "RMS error of the georeferenced camera centres against the true positions "
         "(m), the flight's mean GNSS error included; residuals are model minus GPS over the "
         "photos the fit kept; SfM simulated (true centres + noise)",
@@ -268,10 +259,7 @@ def _run_fast(
     }
     for model in models:
         t0 = time.perf_counter()
-        runs = [
-            run_seed(s, lines, per_line, spacing_m, interval_s, speed_m_s, sfm_noise_m, model)
-            for s in range(seeds)
-        ]
+        runs = [run_seed(s, plan, model) for s in range(seeds)]
         block = model_block(model, runs)
         block["seconds"] = round(time.perf_counter() - t0, 3)
         result["models"][model] = block
@@ -360,15 +348,9 @@ def photos(
             models, full, first_seed, work_dir, full_scenario, full_width, full_height, fresh
         )
     else:
-        result = _run_fast(
-            models,
-            seeds,
-            lines,
-            photos_per_line,
-            line_spacing_m,
-            interval_s,
-            speed_m_s,
-            sfm_noise_m,
+        plan = PhotoSurvey(
+            lines, photos_per_line, line_spacing_m, interval_s, speed_m_s, sfm_noise_m
         )
+        result = _run_fast(models, seeds, plan)
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
