@@ -6,7 +6,8 @@ and `submit_reconstruction` queues the job that turns them into a DSM (worker/jo
 reconstruction.py). A file that fails its check is removed with no row left behind.
 A file keeps what its check warned about (`SurveyFile.warnings`); a log is read against the
 survey's video, and read again when the video arrives or is deleted, so that its warnings
-speak of the recording processing will use (a DJI SRT may join several).
+speak of the recording processing will use (a DJI SRT may join several; the user may
+choose one, `choose_recording`, or with the survey's option `recording`).
 
 A video survey may be submitted while its video is still arriving through a resumable
 upload (the log must be there): the job reads the video as it comes, and the upload,
@@ -45,6 +46,7 @@ from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_jo
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.images import read_image_metadata
 from worker.pipeline.ingest.read_log import read_flight_log
+from worker.pipeline.ingest.recordings import VideoClues
 from worker.pipeline.ingest.video import probe_video
 from worker.pipeline.quality import failed_messages, survey_quality
 from worker.pipeline.reconstruction import ReconstructionOptions
@@ -129,30 +131,41 @@ def _check_role(survey: Survey, role: str, name: str, streamed: bool = False) ->
 
 
 def check_source_file(
-    path: Path, role: str, name: str, *, video_duration_s: float | None = None
+    path: Path,
+    role: str,
+    name: str,
+    *,
+    video: VideoClues | None = None,
+    recording: int | None = None,
 ) -> dict[str, Any]:
     """Read the file as the pipeline will; raise InputError naming what is wrong.
 
     The readers name the file in their messages: they read it through a link named as
-    the user's file, not as its storage name. A log is read with the survey's video
-    duration when there is a video (`video_duration_s`), as processing reads it: that
-    duration picks the recording of an SRT joined from several, so the warnings speak of
-    the recording that will be used.
+    the user's file, not as its storage name. A log is read as processing reads it:
+    against the survey's video when there is one (`video`: its length, frame count and
+    creation time) and with the survey's chosen `recording`, which pick the recording of
+    an SRT joined from several, so the warnings speak of the recording that will be
+    used (and a recording the file does not hold is refused, naming those it holds).
     """
     with tempfile.TemporaryDirectory(prefix="slidewatch-check-") as folder:
         link = Path(folder) / name
         link.symlink_to(Path(path).resolve())
-        return _read_source_file(link, role, name, video_duration_s)
+        return _read_source_file(link, role, name, video, recording)
 
 
 def _read_source_file(
-    path: Path, role: str, name: str, video_duration_s: float | None
+    path: Path, role: str, name: str, video: VideoClues | None, recording: int | None
 ) -> dict[str, Any]:
     if role == "video":
         info = probe_video(path)
-        return {"duration_s": info.duration_s, "width": info.width, "height": info.height}
+        return {
+            "duration_s": info.duration_s,
+            "width": info.width,
+            "height": info.height,
+            "clues": VideoClues.from_video_info(info.to_dict()),
+        }
     if role == "log":
-        log = read_flight_log(path, video_duration_s=video_duration_s)
+        log = read_flight_log(path, video=video, recording=recording)
         return {"records": len(log), "format": log.source_format, "warnings": log.warnings}
     meta = read_image_metadata(path)
     if not meta.has_gps:
@@ -166,20 +179,24 @@ def _file_of_role(survey: Survey, role: str) -> SurveyFile | None:
     return next((f for f in survey.files if f.role == role), None)
 
 
-def _video_duration(storage: LocalStorage, survey: Survey) -> float | None:
-    """The duration of the survey's video, None while it has none (or it has no
-    duration in its header): probed again rather than stored, as the job's ingest does."""
+def _video_clues(storage: LocalStorage, survey: Survey) -> VideoClues | None:
+    """What the survey's video says of its recording, None while it has none: probed
+    again rather than stored, as the job's ingest does."""
     video = _file_of_role(survey, "video")
     if video is None:
         return None
-    return probe_video(storage.absolute(video.file.path)).duration_s
+    return VideoClues.from_video_info(probe_video(storage.absolute(video.file.path)).to_dict())
 
 
-def _recheck_log(storage: LocalStorage, survey: Survey, video_duration_s: float | None) -> None:
+def _chosen_recording(survey: Survey) -> int | None:
+    return (survey.options or {}).get("recording")
+
+
+def _recheck_log(storage: LocalStorage, survey: Survey, video: VideoClues | None) -> None:
     """Read the survey's log again against the video it now has (or no longer has), so
     that its warnings say which recording processing will use.
 
-    A log that the video's duration makes unusable (the matching recording of a joined
+    A log that the video makes unusable (the matching recording of a joined
     file is unreadable) keeps its place: the video is fine, and the log's warnings say
     why processing will fail with this pair.
     """
@@ -188,9 +205,11 @@ def _recheck_log(storage: LocalStorage, survey: Survey, video_duration_s: float 
         return
     path = storage.absolute(log.file.path)
     try:
-        checked = check_source_file(path, "log", log.name, video_duration_s=video_duration_s)
+        checked = check_source_file(
+            path, "log", log.name, video=video, recording=_chosen_recording(survey)
+        )
     except InputError as exc:
-        against = f"the video's {video_duration_s:.1f} s" if video_duration_s else "no video"
+        against = f"the video ({video.describe()})" if video else "no video"
         log.warnings = [f"{exc} (read against {against}; processing will stop there)"]
         return
     log.warnings = list(checked["warnings"])
@@ -200,9 +219,13 @@ def _record(
     session: Session, storage: LocalStorage, survey: Survey, role: str, name: str, saved: SavedFile
 ) -> SurveyFile:
     try:
-        duration = _video_duration(storage, survey) if role == "log" else None
+        video = _video_clues(storage, survey) if role == "log" else None
         checked = check_source_file(
-            storage.absolute(saved.relative_path), role, name, video_duration_s=duration
+            storage.absolute(saved.relative_path),
+            role,
+            name,
+            video=video,
+            recording=_chosen_recording(survey),
         )
         stored = StoredFile(
             path=saved.relative_path,
@@ -220,7 +243,7 @@ def _record(
         )
         session.add_all([stored, survey_file])
         if role == "video":
-            _recheck_log(storage, survey, checked["duration_s"])
+            _recheck_log(storage, survey, checked["clues"])
         session.commit()
     except BaseException:
         session.rollback()
@@ -302,6 +325,33 @@ def missing_files(survey: Survey, arriving: Upload | None = None) -> str | None:
             f"at least {MIN_IMAGES} geotagged photos are needed"
         )
     return None
+
+
+def choose_recording(
+    session: Session, storage: LocalStorage, survey: Survey, recording: int
+) -> None:
+    """Use `recording` (1-based) of the survey's SRT log when it joins several: kept in
+    the survey's options, which processing reads, and the log's warnings say so. Raises
+    InputError naming the file's recordings when it holds no such one."""
+    if survey.status != SurveyStatus.receiving:
+        raise SourceRejected(
+            f"survey {survey.id} is {survey.status.value}; the recording is chosen before "
+            "processing starts"
+        )
+    log = _file_of_role(survey, "log")
+    if log is None:
+        raise SourceRejected(f"survey {survey.id} has no flight log to choose a recording of")
+    options = ReconstructionOptions.from_dict({**(survey.options or {}), "recording": recording})
+    checked = check_source_file(
+        storage.absolute(log.file.path),
+        "log",
+        log.name,
+        video=_video_clues(storage, survey),
+        recording=options.recording,
+    )
+    survey.options = {**(survey.options or {}), "recording": recording}
+    log.warnings = list(checked["warnings"])
+    session.commit()
 
 
 def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> Job:

@@ -5,6 +5,8 @@ GPS). Bad files are refused with a message naming what is wrong and leave nothin
 """
 
 import json
+import re
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -295,18 +297,27 @@ def test_a_log_with_unreadable_blocks_is_kept_and_its_upload_says_which(app, cli
     assert listed.json()[0]["warnings"] == warnings
 
 
-def joined_srt(path: Path, bad_line_block: int | None = None) -> Path:
-    """An SRT of two recordings joined: 6 s (as long as the simulated video) flown at
-    09:00, then 12 s at 09:10; block `bad_line_block` of the first has a garbled time."""
+def first_clock(srt: Path) -> datetime:
+    """The local clock time of an SRT's first block (to the second)."""
+    match = re.search(r"\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2}", srt.read_text())
+    assert match, srt
+    return datetime.strptime(match.group(0), "%Y-%m-%d %H:%M:%S")
+
+
+def joined_srt(path: Path, start: datetime, bad_line_block: int | None = None) -> Path:
+    """An SRT of two recordings joined: 6 s (as long as the simulated video) flown from
+    `start` (the video's), then 12 s ten minutes later; block `bad_line_block` of the
+    first has a garbled time."""
     blocks = []
-    for start, seconds, lon in (("09:00", 6, 8.2090), ("09:10", 12, 8.3090)):
+    for begin, seconds, lon in ((start, 6, 8.2090), (start + timedelta(minutes=10), 12, 8.3090)):
         for i in range(seconds):
             number = len(blocks) + 1
             times = f"00:00:{i:02d},000 --> 00:00:{i + 1:02d},000"
             if number == bad_line_block:
                 times = f"00:00:{i:02d},000 --> 00:0x:{i + 1:02d},000"
+            clock = begin + timedelta(seconds=i)
             blocks.append(
-                f"{number}\n{times}\n2026-07-01 {start}:{i:02d}\n"
+                f"{number}\n{times}\n{clock:%Y-%m-%d %H:%M:%S}\n"
                 f"GPS ({lon:.4f}, 47.{4690 + i}, 18), H 45.{i}m\n"
             )
     path.write_text("\n".join(blocks))
@@ -318,10 +329,13 @@ def test_a_joined_log_is_read_against_the_survey_video(
 ):
     """The upload's warnings speak of the recording processing will use: without a video,
     the recordings are listed and the longest is kept for now; when the video arrives (or
-    was there first), the log is read again and the one as long as the video is kept."""
+    was there first), the log is read again and the one matching the video (as long, and
+    started when the video was made) is kept. The user may choose another; a recording
+    the log does not hold is refused, naming those it holds."""
     flight, _ = simulated_mounds_survey
     video = flight / "DJI_0001.MP4"  # 6.07 s: 91 frames at 15 fps
-    log = joined_srt(tmp_path / "flight.SRT", bad_line_block=3)
+    start = first_clock(flight / "DJI_0001.SRT")
+    log = joined_srt(tmp_path / "flight.SRT", start, bad_line_block=3)
     site = new_site(client, auth)
     sid = new_source(client, auth, site)["id"]
     files_url = f"/api/v1/sites/{site}/surveys/{sid}/files"
@@ -329,9 +343,10 @@ def test_a_joined_log_is_read_against_the_survey_video(
     alone = put_file(client, auth, site, sid, log, "log")
     assert alone.status_code == 201, alone.text
     (joined,) = [w for w in alone.json()["warnings"] if "joins 2 recordings" in w]
+    second = start + timedelta(minutes=10)
     for words in (
-        "1: from 2026-07-01 09:00:00, 6.0 s, 6 blocks, lines 1-",
-        "2: from 2026-07-01 09:10:00, 12.0 s, 12 blocks",
+        f"1: from {start:%Y-%m-%d %H:%M:%S}, 6.0 s, 6 blocks, lines 1-",
+        f"2: from {second:%Y-%m-%d %H:%M:%S}, 12.0 s, 12 blocks",
         "no video to choose by: kept recording 2, the longest, for now",
     ):
         assert words in joined, joined
@@ -342,7 +357,9 @@ def test_a_joined_log_is_read_against_the_survey_video(
     assert added.status_code == 201, added.text
     listed = {f["role"]: f for f in client.get(files_url, headers=auth).json()}
     warnings = listed["log"]["warnings"]
-    assert any("kept recording 1: its length matches the video's 6.1 s" in w for w in warnings)
+    (matched,) = [w for w in warnings if "joins 2 recordings" in w]
+    assert "kept recording 1, which matches the video (6.1 s, 91 frames, created " in matched
+    assert "its length and start match" in matched
     assert "flight.SRT: 1 of 6 blocks unreadable and skipped (line 11: " in " ".join(warnings)
     survey = client.get(f"/api/v1/sites/{site}/surveys/{sid}", headers=auth).json()
     assert survey["warnings"] == warnings
@@ -361,3 +378,40 @@ def test_a_joined_log_is_read_against_the_survey_video(
     answer = put_file(client, auth, site, other, log, "log")
     assert answer.status_code == 201, answer.text
     assert answer.json()["warnings"] == warnings
+
+    # The user chooses: a recording the log does not hold is refused, naming them.
+    process = f"/api/v1/sites/{site}/surveys/{other}/process"
+    refused = client.post(process, params={"recording": 3}, headers=auth)
+    assert refused.status_code == 422, refused.text
+    detail = refused.json()["detail"]
+    assert "flight.SRT: recording 3 was chosen, but the file holds 2 recordings" in detail
+    assert f"2: from {second:%Y-%m-%d %H:%M:%S}, 12.0 s" in detail
+    assert (
+        client.get(f"/api/v1/sites/{site}/surveys/{other}", headers=auth).json()["status"]
+        == "receiving"
+    )
+    chosen = client.post(process, params={"recording": 2}, headers=auth)
+    assert chosen.status_code == 202, chosen.text
+    log_file = next(
+        f
+        for f in client.get(f"/api/v1/sites/{site}/surveys/{other}/files", headers=auth).json()
+        if f["role"] == "log"
+    )
+    assert any("kept recording 2, as chosen" in w for w in log_file["warnings"])
+    with app.state.sessionmaker() as session:
+        assert session.get(Survey, other).options["recording"] == 2
+
+    # Chosen when the survey is made: the log's upload is checked against it.
+    made = client.post(
+        f"/api/v1/sites/{site}/surveys/sources",
+        json={
+            "kind": "video",
+            "name": "Second recording",
+            "captured_at": "2026-07-01T09:00:00Z",
+            "options": {"recording": 5},
+        },
+        headers=auth,
+    )
+    assert made.status_code == 201, made.text
+    refused = put_file(client, auth, site, made.json()["id"], log, "log")
+    assert refused.status_code == 422 and "recording 5 was chosen" in refused.json()["detail"]

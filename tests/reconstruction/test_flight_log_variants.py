@@ -11,6 +11,7 @@ import pytest
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.read_log import read_flight_log
+from worker.pipeline.ingest.recordings import VideoClues
 
 FIXTURES = Path(__file__).parent / "fixtures" / "flight_logs"
 
@@ -57,11 +58,11 @@ def test_joined_recordings_keep_the_longest_and_say_so():
 
 
 def test_joined_recordings_keep_the_one_matching_the_video():
-    log = read_flight_log(fixture("joined_recordings.srt"), video_duration_s=3.1)
+    log = read_flight_log(fixture("joined_recordings.srt"), video=VideoClues(duration_s=3.1))
     assert len(log) == 3
     np.testing.assert_allclose(log.lon, 8.2090)
     np.testing.assert_allclose(log.alt, [45.0, 45.1, 45.2])
-    assert has(log, "joins 2 recordings", "kept recording 1", "matches the video's 3.1 s")
+    assert has(log, "joins 2 recordings", "kept recording 1, which matches the video (3.1 s)")
 
 
 def test_enterprise_drone_attitude_is_aircraft_attitude():
@@ -147,7 +148,8 @@ def test_joined_recordings_without_time_ranges_split_at_the_frame_counter(tmp_pa
     np.testing.assert_allclose(log.lat, [35.1234, 35.12341, 35.12342, 35.12343])
     assert has(log, "joins 2 recordings", "0.1 s", "0.0 s", "kept recording 1", "longest")
     short = read_flight_log(
-        _write(tmp_path, "j2.srt", "\n\n".join(blocks + second) + "\n"), video_duration_s=0.04
+        _write(tmp_path, "j2.srt", "\n\n".join(blocks + second) + "\n"),
+        video=VideoClues(duration_s=0.04),
     )
     np.testing.assert_allclose(short.lat, [36.1234, 36.12341])
 

@@ -61,6 +61,13 @@ EXIT_INPUT_ERROR = 2
     help="log time = video time + this (seconds); estimated when not given.",
 )
 @click.option(
+    "--recording",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Of an SRT file joined from several recordings, the one to use (as the log's "
+    "warning numbers them); by default the one that matches the video.",
+)
+@click.option(
     "--position-sigma",
     type=(float, float),
     default=None,
@@ -91,13 +98,14 @@ def reconstruct(
     fx: float | None,
     hfov: float | None,
     time_offset: float | None,
+    recording: int | None,
     position_sigma: tuple[float, float] | None,
     width: int,
     height: int,
     from_stage: str,
 ) -> None:
     """Reconstruct a survey into a DSM; print a one-line JSON summary."""
-    options = ReconstructionOptions(method=method, time_offset_s=time_offset)
+    options = ReconstructionOptions(method=method, time_offset_s=time_offset, recording=recording)
     options.camera = CameraOverride(model=camera, fx=fx, hfov_deg=hfov)
     if fx is not None:
         options.camera.width = None

@@ -74,6 +74,7 @@ from worker.pipeline.ingest.camera import CameraOverride, Intrinsics, resolve_in
 from worker.pipeline.ingest.flight_log import FlightLog
 from worker.pipeline.ingest.images import read_image_set
 from worker.pipeline.ingest.read_log import read_flight_log
+from worker.pipeline.ingest.recordings import VideoClues
 from worker.pipeline.ingest.time_offset import (
     OffsetMethod,
     PriorSource,
@@ -154,6 +155,9 @@ class ReconstructionOptions:
     camera: CameraOverride = field(default_factory=CameraOverride)
     time_offset_s: float | None = None  # given by the user: not estimated
     angle_unit: str = "auto"
+    # Of an SRT joined from several recordings, the one to use (1-based, as the log's
+    # warning numbers them); None: the one that matches the video.
+    recording: int | None = None
     frames: FrameOptions = field(default_factory=FrameOptions)
     slam: SlamOptions = field(default_factory=SlamOptions)
     ties: TieOptions = field(default_factory=TieOptions)  # slam: between flight lines
@@ -163,6 +167,11 @@ class ReconstructionOptions:
     sparse_sor: bool = True  # open3d statistical outlier removal on the sparse cloud
     dense_sor: bool = False  # the same on the dense cloud (slow: 20 s per 2M points)
     dense_grid_k: float = 3.5  # robust per-cell height filter of the dense cloud
+
+    def __post_init__(self) -> None:
+        chosen = self.recording
+        if chosen is not None and (type(chosen) is not int or chosen < 1):
+            raise InputError(f"recording is a recording's number (1, 2, ...), not {chosen!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -240,12 +249,16 @@ def _method(inputs: dict[str, Any], options: ReconstructionOptions) -> str:
 def _load_log(ingest: IngestResult, options: ReconstructionOptions) -> FlightLog:
     if ingest.image_set:
         return read_image_set(ingest.image_set).log
-    # The video's duration picks the same recording of a joined SRT as ingest did.
-    duration = (ingest.video or {}).get("duration_s")
+    # What the video says picks the same recording of a joined SRT as ingest did.
     log = ingest.inputs["log"]
     if log is None:
         raise InputError("ingest.json names no flight log")
-    return read_flight_log(log, angle_unit=options.angle_unit, video_duration_s=duration)
+    return read_flight_log(
+        log,
+        angle_unit=options.angle_unit,
+        video=VideoClues.from_video_info(ingest.video),
+        recording=options.recording,
+    )
 
 
 # -- stages ------------------------------------------------------------------------------
@@ -291,7 +304,10 @@ def ingest(
         video = probe_video(given["video"], inputs.video_arrival())
         progress(0.3)
         log = read_flight_log(
-            given["log"], angle_unit=options.angle_unit, video_duration_s=video.duration_s
+            given["log"],
+            angle_unit=options.angle_unit,
+            video=VideoClues.from_video_info(video.to_dict()),
+            recording=options.recording,
         )
         focal35 = log.meta.get("focal_len_35mm")
         intr = resolve_intrinsics(

@@ -5,6 +5,7 @@ PUT    /sites/{site_id}/surveys/{survey_id}/files/{name}?role=video|log|image   
 GET    /sites/{site_id}/surveys/{survey_id}/files
 DELETE /sites/{site_id}/surveys/{survey_id}/files/{file_id}
 POST   /sites/{site_id}/surveys/{survey_id}/process     queue the reconstruction job
+       (?recording=N: of a log joined from several recordings, the one to use)
 """
 
 from datetime import UTC
@@ -21,6 +22,7 @@ from backend.services.survey_sources import (
     ROLES,
     SourceRejected,
     add_survey_file_from_stream,
+    choose_recording,
     create_source_survey,
     remove_survey_file,
     submit_reconstruction,
@@ -124,13 +126,30 @@ def delete_file(
 
 
 @router.post("/{survey_id}/process", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
-def process(survey_id: int, site: SiteDep, session: SessionDep, celery: CeleryDep) -> JobOut:
+def process(
+    survey_id: int,
+    site: SiteDep,
+    session: SessionDep,
+    storage: StorageDep,
+    celery: CeleryDep,
+    recording: Annotated[
+        int | None,
+        Query(
+            description="Of a flight log joined from several recordings, the one to use "
+            "(as the log's warning numbers them); by default the one matching the video."
+        ),
+    ] = None,
+) -> JobOut:
     """Queue the reconstruction of the survey's DSM from its files."""
     survey = survey_of_site(session, site, survey_id)
     try:
+        if recording is not None:
+            choose_recording(session, storage, survey, recording)
         job = submit_reconstruction(celery, session, survey)
     except SourceRejected as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    except InputError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     except QueueUnavailable as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
     return job_out(job)

@@ -13,28 +13,37 @@ from pathlib import Path
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest import csv_logs, srt, srt_blocks
 from worker.pipeline.ingest.flight_log import FlightLog
+from worker.pipeline.ingest.recordings import VideoClues
+
+
+@dataclass(frozen=True)
+class LogRead:
+    """How to read a log: the SRT angle unit, and which recording of a joined file."""
+
+    angle_unit: str = "auto"
+    video: VideoClues | None = None  # what the video says, to match its recording
+    recording: int | None = None  # chosen by the user (1-based)
 
 
 @dataclass(frozen=True)
 class LogFormat:
     name: str
     recognises: Callable[[str], bool]
-    # (text, path, angle unit, video duration or None) -> the log
-    read: Callable[[str, Path, str, float | None], FlightLog]
+    read: Callable[[str, Path, LogRead], FlightLog]
 
 
 LOG_FORMATS = (
     LogFormat(
         "DJI SRT",
         srt_blocks.looks_like_srt,
-        lambda text, path, angle_unit, duration: srt.parse_srt(
-            text, path, angle_unit=angle_unit, video_duration_s=duration
+        lambda text, path, how: srt.parse_srt(
+            text, path, angle_unit=how.angle_unit, video=how.video, recording=how.recording
         ),
     ),
     LogFormat(
         "CSV (AirData, PhantomHelp, Litchi, generic)",
         csv_logs.looks_like_csv,
-        lambda text, path, _angle_unit, _duration: csv_logs.parse_csv_log(text, path),
+        lambda text, path, _how: csv_logs.parse_csv_log(text, path),
     ),
 )
 
@@ -47,15 +56,21 @@ _DJI_TXT_HINT = (
 
 
 def read_flight_log(
-    path: Path | str, *, angle_unit: str = "auto", video_duration_s: float | None = None
+    path: Path | str,
+    *,
+    angle_unit: str = "auto",
+    video: VideoClues | None = None,
+    recording: int | None = None,
 ) -> FlightLog:
     """Read a DJI SRT, an AirData / PhantomHelp / Litchi CSV or a generic CSV.
 
     The format is recognised from the content, not the file name. `angle_unit`
-    ("auto", "deg", "rad") overrides the radians detection of SRT attitudes.
-    `video_duration_s` (the video's length, when known) picks the matching recording of
-    an SRT file joined from several. Unreadable records are skipped and warned about;
-    raises InputError naming the file (and lines) when too little can be used.
+    ("auto", "deg", "rad") overrides the radians detection of SRT attitudes. In an SRT
+    file joined from several recordings, `recording` (1-based) is used when given (an
+    InputError lists the recordings when the file has no such one), else the one that
+    matches the `video` (its length, frame count and creation time, when known; see
+    `recordings`). Unreadable records are skipped and warned about; raises InputError
+    naming the file (and lines) when too little can be used.
     """
     path = Path(path)
     name = path.name
@@ -72,7 +87,7 @@ def read_flight_log(
     text = _decode(raw, name)
     for log_format in LOG_FORMATS:
         if log_format.recognises(text):
-            return log_format.read(text, path, angle_unit, video_duration_s)
+            return log_format.read(text, path, LogRead(angle_unit, video, recording))
     if path.suffix.lower() == ".txt" and name.lower().startswith("djiflightrecord"):
         raise InputError(f"{name} {_DJI_TXT_HINT}")
     raise InputError(

@@ -2,7 +2,8 @@
 
 Each subtitle block (index, `HH:MM:SS,mmm --> HH:MM:SS,mmm`, text) gives one sample at
 the block's start time, which is video time: `time_base == "video"`. Block structure
-(missing time ranges, joined recordings) is `srt_blocks`' job; this module reads the text.
+(missing time ranges) is `srt_blocks`' job, joined recordings `recordings`'; this module
+reads the text.
 
 Text shapes recognised (one parser, field by field, so mixtures work too):
 
@@ -40,13 +41,13 @@ import numpy as np
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.flight_log import ANGLE_KEYS, FlightLog, build_flight_log
+from worker.pipeline.ingest.recordings import VideoClues, choose_recording
 from worker.pipeline.ingest.skipped import RecordError, Skipped, off_earth
 from worker.pipeline.ingest.srt_blocks import (
     CLOCK,
     DIFFTIME,
     FRAMECNT,
     Block,
-    choose_recording,
     clock_time,
     split_blocks,
     untimed_times,
@@ -288,12 +289,14 @@ def parse_srt(
     path: Path | str,
     *,
     angle_unit: str = "auto",
-    video_duration_s: float | None = None,
+    video: VideoClues | None = None,
+    recording: int | None = None,
 ) -> FlightLog:
     """Parse the text of a DJI SRT file into a `FlightLog` (time_base "video").
 
-    `video_duration_s` picks, in a file joined from several recordings, the one that
-    matches the video; without it the longest is kept (with a warning either way).
+    In a file joined from several recordings, `recording` (1-based) is the one to use,
+    else the one that matches the `video` (see `recordings`), else the longest; with a
+    warning either way.
     """
     name = Path(path).name
     blocks = split_blocks(text)
@@ -301,7 +304,7 @@ def parse_srt(
         raise InputError(f"{name}: no subtitle blocks found")
     warnings: list[str] = []
     meta: dict[str, Any] = {}
-    blocks = choose_recording(blocks, name, video_duration_s, warnings, meta)
+    blocks = choose_recording(blocks, name, video, warnings, meta, chosen=recording)
     flags: dict[str, Any] = {}
     skipped = Skipped(name, "blocks")
     rows = _read_blocks(blocks, name, flags, skipped)

@@ -1,11 +1,11 @@
-"""The block structure of DJI SRT files: blocks, their video times, and joined recordings.
+"""The block structure of DJI SRT files: blocks and their video times.
 
 A block is an index line, a time range line (`00:00:00,000 --> 00:00:00,033`) and text.
 Real files bend this: some firmware writes no time range (a bare index, then the
 text; the frame counter or the block's clock time then gives the time), and a file may
 be several recordings joined (the time ranges, or frame counters, start again at 0).
-This module finds the blocks, their times and, in a joined file, keeps one recording:
-the one whose length matches the video when the caller knows it, else the longest.
+This module finds the blocks and their times; `recordings` splits a joined file into
+its recordings and chooses the video's.
 """
 
 from __future__ import annotations
@@ -35,10 +35,6 @@ CLOCK = re.compile(
 # Telemetry text that marks an SRT without time ranges (it has bare index lines instead).
 _TELEMETRY = re.compile(r"FrameCnt|SrtCnt|\bGPS\s*\(|\[\s*lat(?:itude)?\s*:", re.IGNORECASE)
 _INDEX = re.compile(r"^\s*\d+\s*$", re.MULTILINE)
-# A recording restarts when the time range jumps back to (near) 00:00:00, or the frame
-# counter back to its first values.
-_RESTART_S = 1.0
-_RESTART_FRAME = 1
 
 
 @dataclass
@@ -119,104 +115,6 @@ def _counter(block: Block, line: str) -> None:
     match = DIFFTIME.search(line)
     if match:
         block.diff_ms = float(match.group(1).replace("\u2212", "-"))
-
-
-def split_recordings(blocks: list[Block]) -> list[list[Block]]:
-    """Blocks grouped by recording: a new one starts where the times (or, without time
-    ranges, the frame counters) jump back to their start."""
-    timed = any(b.start is not None for b in blocks)
-    limit = _RESTART_S if timed else _RESTART_FRAME
-    recordings: list[list[Block]] = [[]]
-    last: float | None = None
-    for block in blocks:
-        clock = block.start if timed else block.frame
-        if clock is not None:
-            if last is not None and clock < last and clock <= limit:
-                recordings.append([])
-            last = clock
-        recordings[-1].append(block)
-    return [r for r in recordings if r]
-
-
-def _duration(recording: list[Block]) -> float:
-    starts = [b.start for b in recording if b.start is not None]
-    if starts:
-        ends = [b.end if b.end is not None else b.start for b in recording if b.start is not None]
-        return max(ends) - min(starts)
-    frames = [b.frame for b in recording if b.frame is not None]
-    diffs = [b.diff_ms for b in recording if b.diff_ms]
-    if frames and diffs:
-        return (max(frames) - min(frames) + 1) * float(np.median(diffs)) / 1000.0
-    return 0.0
-
-
-def _clock_start(recording: list[Block]) -> datetime | None:
-    """The clock time of the recording's first block that has one (DJI writes local
-    time), to tell the recordings apart by when they were flown."""
-    for block in recording:
-        for _, text in block.lines:
-            match = CLOCK.search(text)
-            if match:
-                return clock_time(match)
-    return None
-
-
-def choose_recording(
-    blocks: list[Block],
-    name: str,
-    video_duration_s: float | None,
-    warnings: list[str],
-    meta: dict[str, Any],
-) -> list[Block]:
-    """The blocks of the recording to use; in a joined file, the choice is warned about,
-    with every recording listed (start, length, blocks, lines) so that the user can tell
-    which one was used and which were set aside."""
-    recordings = split_recordings(blocks)
-    if len(recordings) == 1:
-        return blocks
-    durations = [_duration(r) for r in recordings]
-    starts = [_clock_start(r) for r in recordings]
-    spans = [(r[0].line, r[-1].lines[-1][0] if r[-1].lines else r[-1].line) for r in recordings]
-    listed = "; ".join(
-        f"{i + 1}: "
-        + (f"from {start:%Y-%m-%d %H:%M:%S}, " if start else "")
-        + f"{d:.1f} s, {len(r)} blocks, lines {a}-{b}"
-        for i, (r, start, d, (a, b)) in enumerate(
-            zip(recordings, starts, durations, spans, strict=True)
-        )
-    )
-    joined = f"{name}: the file joins {len(recordings)} recordings ({listed})"
-    if video_duration_s:
-        kept = min(range(len(recordings)), key=lambda i: abs(durations[i] - video_duration_s))
-        # A second or a tenth of the video either way: the SRT's last block and the video's
-        # last frame do not end together.
-        off = abs(durations[kept] - video_duration_s)
-        if off <= max(1.0, 0.1 * video_duration_s):
-            why = f"its length matches the video's {video_duration_s:.1f} s"
-        else:
-            why = (
-                f"the nearest to the video's {video_duration_s:.1f} s, though {off:.1f} s "
-                "off: check that this log belongs to the video"
-            )
-        warnings.append(f"{joined}; kept recording {kept + 1}: {why}; the others are not used")
-    else:
-        kept = max(range(len(recordings)), key=lambda i: durations[i])
-        warnings.append(
-            f"{joined}, and there is no video to choose by: kept recording {kept + 1}, the "
-            "longest, for now; the others are not used. With the survey's video, the "
-            "recording whose length matches it is used; or upload an SRT of one recording"
-        )
-    meta["recordings"] = [
-        {
-            "lines": list(span),
-            "duration_s": round(d, 3),
-            "blocks": len(r),
-            "start": start.isoformat() if start else None,
-        }
-        for r, start, d, span in zip(recordings, starts, durations, spans, strict=True)
-    ]
-    meta["recording_kept"] = kept + 1
-    return recordings[kept]
 
 
 def untimed_times(

@@ -43,8 +43,9 @@ class VideoInfo:
     height: int
     fps: float
     duration_s: float | None
-    frames: int | None
+    frames: int | None  # the container's count, else estimated from duration and rate
     creation_time: str | None  # ISO 8601 UTC as the container states it, or None
+    frames_stated: bool = False  # `frames` is the container's count, not an estimate
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -149,6 +150,7 @@ def probe_video(path: Path | str, arrival: Arrival | None = None) -> VideoInfo:
             duration_s=duration,
             frames=frames,
             creation_time=_creation_time(container),
+            frames_stated=bool(stream.frames),
         )
 
 
