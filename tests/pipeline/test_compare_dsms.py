@@ -48,10 +48,12 @@ def test_summary(slide_run):
     assert summary["shift_m"]["east"] == pytest.approx(-2.4, abs=0.1)
     assert summary["shift_m"]["north"] == pytest.approx(1.3, abs=0.1)
     assert summary["shift_m"]["up"] == pytest.approx(-0.5, abs=0.02)
+    assert abs(summary["rotation_deg"]) < 0.01  # the pair is not rotated
     assert summarize({}) == {
         "detections": 0,
         "total_area_m2": 0.0,
         "shift_m": {"east": 0.0, "north": 0.0, "up": 0.0},
+        "rotation_deg": 0.0,
     }
 
 

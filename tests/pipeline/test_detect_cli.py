@@ -33,7 +33,7 @@ def test_detect_writes_geojson_and_prints_one_summary_line(slide_run, tmp_path):
     assert len(lines) == 1
     summary = json.loads(lines[0])
     assert summary["detections"] == 1
-    assert set(summary) == {"detections", "total_area_m2", "shift_m"}
+    assert set(summary) == {"detections", "total_area_m2", "shift_m", "rotation_deg"}
     assert set(summary["shift_m"]) == {"east", "north", "up"}
     assert json.loads(out.read_text())["type"] == "FeatureCollection"
     assert (work / "dh.tif").exists()

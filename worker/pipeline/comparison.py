@@ -266,7 +266,8 @@ def run_stage(
 def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     """Short summary from stage results: detections, their total area, and the shift.
 
-    shift_m is the correction applied to the post DSM (see coregister.py).
+    shift_m is the correction applied to the post DSM, after its rotation by rotation_deg
+    about the grid centre (see coregister.py).
     """
     detection_stages = [m.stage.name for m in detection_methods()]
     found = next((results[s] for s in detection_stages if results.get(s)), {})
@@ -279,6 +280,7 @@ def summarize(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
             "north": round(float(shift.get("shift_north_m", 0.0)), 4),
             "up": round(float(shift.get("shift_up_m", 0.0)), 4),
         },
+        "rotation_deg": round(float(shift.get("rotation_deg", 0.0)), 4),
     }
 
 

@@ -21,6 +21,15 @@ The tilt is a least-squares plane fitted with numpy rather than xdem's Deramp: i
 that is not a tilt. The tilt is removed from post before each Nuth & Kääb fit, because a
 tilt left in dh biases the horizontal estimate (measured: 1 m/km gave 0.04 px of bias).
 
+A rotation of post about the grid centre (an uncorrected heading of a few tenths of a
+degree moves the edges of a survey by decimetres, enough to read as change on steep
+ground) is estimated when `rotation` is on, after Nuth & Kääb: a least-squares surface
+match linearised in the horizontal motion (Gruen & Akca 2005),
+dh = dz/dx (tx - theta (y - yc)) + dz/dy (ty + theta (x - xc)) + plane(x, y), solved on
+stable terrain with the slopes of the pre surface, applied, and repeated; it is kept
+only when it lowers the spread of dh on stable terrain. The correction then reads: a
+feature of post at q lands at R(theta) (q - c) + c + t.
+
 Flat terrain (too few pixels steeper than `min_slope_deg`) carries no horizontal
 information; then only the vertical correction (and tilt) is estimated.
 
@@ -70,6 +79,8 @@ class CoregisterOptions:
     subsample: int = 200_000  # pixels used per fit (measured: same accuracy as 500k)
     min_stable_pixels: int = 1_000
     coarse_shift: bool = True  # phase correlation first (see the module doc)
+    rotation: bool = True  # estimate a rotation about the grid centre (module doc)
+    rotation_iterations: int = 3
     seed: int = 42
 
 
@@ -98,13 +109,18 @@ class CoregisterResult(StageResult):
     # Correction's quadratic terms, metres per m^2 about the pivot: (x^2, y^2, x y).
     dome_m_per_m2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dome_range_m: float = 0.0  # largest minus smallest of those terms over the grid
+    # Rotation applied to post about the pivot, degrees counter-clockwise (map x east,
+    # y north); the shift is applied after it.
+    rotation_deg: float = 0.0
 
     def correct_points(self, points: np.ndarray) -> np.ndarray:
         """Move points (N, 3) of the post survey (map x, y, height) the way the
         correction moved its DSM: a feature of post lands where pre has it."""
         points = np.asarray(points, dtype=np.float64)
-        x = points[:, 0] + self.shift_east_m
-        y = points[:, 1] + self.shift_north_m
+        theta = np.radians(self.rotation_deg)
+        px, py = points[:, 0] - self.tilt_pivot_east_m, points[:, 1] - self.tilt_pivot_north_m
+        x = self.tilt_pivot_east_m + np.cos(theta) * px - np.sin(theta) * py + self.shift_east_m
+        y = self.tilt_pivot_north_m + np.sin(theta) * px + np.cos(theta) * py + self.shift_north_m
         tilt_e = (self.tilt_east_m_per_km or 0.0) / 1000.0
         tilt_n = (self.tilt_north_m_per_km or 0.0) / 1000.0
         u, v = x - self.tilt_pivot_east_m, y - self.tilt_pivot_north_m
@@ -199,6 +215,11 @@ def coregister(
             break
     if np.count_nonzero(stable) < options.min_stable_pixels:
         raise InputError("too little stable terrain left to co-register the DSMs")
+    theta = 0.0
+    if horizontal and options.rotation:
+        shift, theta, shifted, plane = _refine_rotation(
+            pre, pre_smooth, post, shifted, stable, transform, crs, shift, plane, dx, dy, options
+        )
 
     corrected = (shifted - plane.evaluate(dx, dy)).astype(np.float32)
     write_geotiff(post_out, corrected, transform, crs)
@@ -233,7 +254,77 @@ def coregister(
         initial_shift_north_m=initial[1],
         dome_m_per_m2=(-plane.d, -plane.e, -plane.f),
         dome_range_m=_dome_range(plane, dx, dy),
+        rotation_deg=float(np.degrees(theta)),
     )
+
+
+def _refine_rotation(
+    pre: np.ndarray,
+    pre_smooth: np.ndarray,
+    post: np.ndarray,
+    shifted: np.ndarray,
+    stable: np.ndarray,
+    transform: Affine,
+    crs: rasterio.crs.CRS,
+    shift: tuple[float, float],
+    plane: _Plane,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    options: CoregisterOptions,
+) -> tuple[tuple[float, float], float, np.ndarray, _Plane]:
+    """Shift, rotation, moved post and plane after the linearised surface match (module
+    doc); the input estimate (`shifted`: post moved by `shift`) unchanged when the
+    rotation does not lower the spread."""
+    gy, gx = np.gradient(pre_smooth.astype(np.float64), transform.e, transform.a)
+    rows, cols = np.nonzero(stable & np.isfinite(gx) & np.isfinite(gy))
+    if rows.size > options.subsample:
+        pick = np.random.default_rng(options.seed).choice(
+            rows.size, options.subsample, replace=False
+        )
+        rows, cols = rows[np.sort(pick)], cols[np.sort(pick)]
+    if rows.size < options.min_stable_pixels:
+        return shift, 0.0, shifted, plane
+    x, y = dx[0, cols].astype(np.float64), dy[rows, 0].astype(np.float64)
+    ex, ey = gx[rows, cols], gy[rows, cols]
+    columns = [ex, ey, ex * -y + ey * x, np.ones(rows.size)]
+    if options.tilt:
+        columns += [x, y]
+        if options.dome:
+            columns += [x * x, y * y, x * y]
+    design = np.column_stack(columns)
+
+    def spread(moved: np.ndarray, fitted: _Plane) -> float:
+        dh = (moved - pre - fitted.evaluate(dx, dy))[stable]
+        return _nmad(dh[np.isfinite(dh)])
+
+    best = (shift, 0.0, shifted, plane)
+    best_spread = spread(shifted, plane)
+    moved, current_shift, theta = shifted, shift, 0.0
+    for _ in range(max(options.rotation_iterations, 1)):
+        values = (moved - pre)[rows, cols].astype(np.float64)
+        ok = np.isfinite(values)
+        keep = ok.copy()
+        coef = np.zeros(design.shape[1])
+        for _ in range(2):  # second pass without the residual outliers of the first
+            coef = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
+            residual = np.where(ok, values - design @ coef, np.inf)
+            keep = ok & (np.abs(residual) <= 3.0 * max(_nmad(residual[ok]), 1e-6))
+        # Moving post on by a small motion m changes dh by -grad . m: the dh left is
+        # grad . m + plane, so the fitted motion is what is still to apply.
+        current_shift = (current_shift[0] + coef[0], current_shift[1] + coef[1])
+        theta += coef[2]
+        moved = _apply_motion(post, transform, crs, current_shift, theta)
+        fitted = _fit_plane(moved - pre, stable, dx, dy, options)
+        candidate_spread = spread(moved, fitted)
+        if candidate_spread >= best_spread:
+            break
+        best, best_spread = (current_shift, theta, moved, fitted), candidate_spread
+        # The motion's largest displacement over the grid, in pixels: done below 0.01.
+        radius = float(np.hypot(np.abs(dx).max(), np.abs(dy).max()))
+        step_px = (np.hypot(coef[0], coef[1]) + abs(coef[2]) * radius) / abs(transform.a)
+        if step_px < 0.01:
+            break
+    return best
 
 
 def _dome_range(plane: _Plane, dx: np.ndarray, dy: np.ndarray) -> float:
@@ -343,9 +434,24 @@ def _apply_shift(
     post: np.ndarray, transform: Affine, crs: rasterio.crs.CRS, shift: tuple[float, float]
 ) -> np.ndarray:
     """post(x - east, y - north) on the same grid, by bilinear resampling."""
-    if shift == (0.0, 0.0):
+    return _apply_motion(post, transform, crs, shift, 0.0)
+
+
+def _apply_motion(
+    post: np.ndarray,
+    transform: Affine,
+    crs: rasterio.crs.CRS,
+    shift: tuple[float, float],
+    theta: float,
+) -> np.ndarray:
+    """post with each feature at q moved to R(theta) (q - c) + c + shift, c the grid
+    centre, on the same grid by bilinear resampling."""
+    if shift == (0.0, 0.0) and theta == 0.0:
         return post.copy()
-    moved = Affine.translation(shift[0], shift[1]) @ transform
+    rows, cols = post.shape
+    cx, cy = transform * (cols / 2, rows / 2)
+    rotate = Affine.rotation(np.degrees(theta), pivot=(cx, cy))
+    moved = Affine.translation(shift[0], shift[1]) @ rotate @ transform
     return warp_elevation(post, moved, crs, transform, crs, post.shape)
 
 
