@@ -36,6 +36,12 @@ class Settings(BaseSettings):
         description="Redis broker: seconds after which a task taken by a worker that died "
         "without acknowledging it is delivered again. Must exceed the longest stage.",
     )
+    broker_polling_interval_s: float = Field(
+        default=1.0,
+        gt=0,
+        description="Embedded (SQLite) broker: how often an idle worker looks for a new task, "
+        "so also the longest wait between one stage of a job and the next.",
+    )
     max_upload_bytes: int = Field(
         default=20 * 1024**3, description="Largest accepted upload, in bytes."
     )

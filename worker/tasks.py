@@ -71,7 +71,14 @@ def recover_stalled_jobs() -> int:
 
 @worker_init.connect
 def _wire(**_kwargs: object) -> None:
-    wire(job_context().settings)
+    settings = job_context().settings
+    wire(settings)
+    if settings.broker_is_embedded:
+        # kombu polls the SQLite broker at its transport class's interval: the broker's
+        # transport options all go to SQLAlchemy's create_engine, which refuses others.
+        from kombu.transport import sqlalchemy as sqlite_broker
+
+        sqlite_broker.Transport.polling_interval = settings.broker_polling_interval_s
 
 
 @worker_ready.connect

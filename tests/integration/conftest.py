@@ -23,6 +23,9 @@ FAST_RECOVERY = {
     "SLIDEWATCH_STALE_STAGE_AFTER_S": "3",
     "SLIDEWATCH_RECOVERY_INTERVAL_S": "2",
     "SLIDEWATCH_BROKER_VISIBILITY_TIMEOUT_S": "5",
+    # The embedded broker hands out one task per poll: with the default 1 s, each stage
+    # (and each recovery sweep queued between them) waits up to a second to start.
+    "SLIDEWATCH_BROKER_POLLING_INTERVAL_S": "0.1",
 }
 
 
