@@ -88,8 +88,9 @@ def app_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
     )
     for process in (worker, api):
         process.env.update(extra)
-    worker.start()
-    api.start()
+        process.launch()  # side by side: each takes seconds to import
+    worker.wait_ready()
+    api.wait_ready()
     try:
         yield App(f"http://127.0.0.1:{port}", settings, api, worker)
     finally:

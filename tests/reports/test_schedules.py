@@ -98,7 +98,7 @@ def test_schedule_makes_exactly_one_report_through_real_beat_and_worker(
         try:
             # One worker, and two beats at once (as after a botched restart): both tick.
             processes.append(
-                SlidewatchProcess(settings, tmp_path / "worker.log", ["worker"], b" ready.").start()
+                SlidewatchProcess(settings, tmp_path / "worker.log", ["worker"], b" ready.")
             )
             for n in (1, 2):
                 beat_settings = settings.model_copy(update={"data_dir": tmp_path / f"beat{n}"})
@@ -106,8 +106,12 @@ def test_schedule_makes_exactly_one_report_through_real_beat_and_worker(
                 processes.append(
                     SlidewatchProcess(
                         beat_settings, tmp_path / f"beat{n}.log", ["beat"], b"beat: Starting"
-                    ).start()
+                    )
                 )
+            for process in processes:  # side by side: each takes seconds to import
+                process.launch()
+            for process in processes:
+                process.wait_ready()
             due = datetime.now(UTC) + timedelta(seconds=3)
             created = client.post(
                 f"/api/v1/sites/{site}/schedules",
