@@ -11,10 +11,8 @@ from sqlalchemy import create_engine
 from sqlalchemy.engine import make_url
 
 from backend.config import Settings
+from tests.databases import TEST_DATABASE_URL
 
-TEST_DATABASE_URL = os.environ.get(
-    "SLIDEWATCH_TEST_DATABASE_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
-)
 TEST_REDIS_URL = os.environ.get("SLIDEWATCH_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
 
 

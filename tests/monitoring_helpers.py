@@ -18,7 +18,6 @@ from fastapi.testclient import TestClient
 from backend.api.app import create_app
 from backend.config import Settings, get_settings
 from backend.db import session as db_session
-from backend.db.migrate import upgrade
 from backend.db.models import (
     Comparison,
     Detection,
@@ -30,6 +29,7 @@ from backend.db.models import (
 )
 from backend.db.tokens import create_token
 from tests.api_helpers import run_job_inline, upload_dsm
+from tests.databases import migrate_new_database
 from worker.simulator.dsm_pair import DsmPairPaths
 
 
@@ -45,7 +45,7 @@ def app_for(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Iterator[Fas
     for cached in (get_settings, db_session.get_engine, db_session.get_sessionmaker):
         cached.cache_clear()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    upgrade(settings.resolved_database_url)
+    migrate_new_database(settings.resolved_database_url)
     application = create_app(settings)
     try:
         yield application

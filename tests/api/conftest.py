@@ -9,8 +9,8 @@ from fastapi.testclient import TestClient
 from backend.api.app import create_app
 from backend.config import Settings, get_settings
 from backend.db import session as db_session
-from backend.db.migrate import upgrade
 from backend.db.tokens import create_token
+from tests.databases import migrate_new_database
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
 
@@ -21,7 +21,7 @@ def app(embedded_settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Iterato
     for cached in (get_settings, db_session.get_engine, db_session.get_sessionmaker):
         cached.cache_clear()
     embedded_settings.data_dir.mkdir(parents=True)
-    upgrade(embedded_settings.resolved_database_url)
+    migrate_new_database(embedded_settings.resolved_database_url)
     application = create_app(embedded_settings)
     yield application
     application.state.engine.dispose()

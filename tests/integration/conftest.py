@@ -14,8 +14,8 @@ from fastapi.testclient import TestClient
 
 from backend.api.app import create_app
 from backend.config import Settings
-from backend.db.migrate import upgrade
 from backend.db.tokens import create_token
+from tests.databases import migrate_new_database
 
 # Short liveness timings, so that a killed worker's stage is taken over within seconds.
 FAST_RECOVERY = {
@@ -123,7 +123,7 @@ def redis_postgres_settings(tmp_path: Path, postgres_url: str, redis_url: str) -
 
 def api_client(settings: Settings) -> tuple[TestClient, dict[str, str]]:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    upgrade(settings.resolved_database_url)
+    migrate_new_database(settings.resolved_database_url)
     app = create_app(settings)
     with app.state.sessionmaker() as session:
         token = create_token(session, "integration tests")
