@@ -16,7 +16,7 @@ from sqlalchemy import func, select
 
 from backend.db.models import StoredFile, Survey, SurveyFile
 from tests.api_helpers import run_job_inline, upload_dsm
-from tests.simulator.simtest_support import image_run
+from tests.simulator.simtest_support import LIGHT_SFM, image_run
 
 
 def new_site(client: TestClient, auth: dict[str, str], name: str = "Mounds") -> int:
@@ -25,12 +25,13 @@ def new_site(client: TestClient, auth: dict[str, str], name: str = "Mounds") -> 
     return response.json()["id"]
 
 
-def new_source(client: TestClient, auth: dict[str, str], site_id: int, kind: str = "video") -> dict:
-    response = client.post(
-        f"/api/v1/sites/{site_id}/surveys/sources",
-        json={"kind": kind, "name": "July flight", "captured_at": "2026-07-01T09:00:00Z"},
-        headers=auth,
-    )
+def new_source(
+    client: TestClient, auth: dict[str, str], site_id: int, kind: str = "video", **options
+) -> dict:
+    body = {"kind": kind, "name": "July flight", "captured_at": "2026-07-01T09:00:00Z"}
+    if options:
+        body["options"] = options
+    response = client.post(f"/api/v1/sites/{site_id}/surveys/sources", json=body, headers=auth)
     assert response.status_code == 201, response.text
     assert response.json()["status"] == "receiving"
     return response.json()
@@ -267,7 +268,7 @@ def test_image_set_becomes_a_dsm(app, client, auth):
     survey_meta = run.steps[0]["surveys"][0]
     photos = sorted((run.root / survey_meta["images_dir"]).glob("DJI_*.JPG"))
     site_id = new_site(client, auth)
-    sid = new_source(client, auth, site_id, kind="images")["id"]
+    sid = new_source(client, auth, site_id, kind="images", sfm=LIGHT_SFM)["id"]
     for photo in photos:
         response = put_file(client, auth, site_id, sid, photo, "image")
         assert response.status_code == 201, response.text

@@ -10,15 +10,21 @@ from click.testing import CliRunner
 from pyproj import Transformer
 from scipy.spatial.transform import Rotation
 
-from tests.simulator.simtest_support import image_run
+from tests.simulator.simtest_support import LIGHT_SFM, image_run
 from worker.commands.bench_photos import photos as bench_photos
 from worker.pipeline.attitude import rotation_world_from_camera
 from worker.pipeline.georef import GeorefOptions, georeference, umeyama
 from worker.pipeline.georef_map import photo_names_at
 from worker.pipeline.ingest.flight_log import build_flight_log
-from worker.pipeline.reconstruction import ReconstructionInputs, reconstruct_survey, write_report
+from worker.pipeline.reconstruction import (
+    ReconstructionInputs,
+    ReconstructionOptions,
+    reconstruct_survey,
+    write_report,
+)
 from worker.pipeline.reconstruction_results import GeoreferenceResult
 from worker.pipeline.robust_fit import ViewPrior, georeference_photos, robust_similarity
+from worker.pipeline.sfm import SfmOptions
 from worker.pipeline.trajectory import Trajectory
 from worker.simulator.gnss import GnssErrorModel, simulate_gnss
 
@@ -178,12 +184,17 @@ def test_bench_photos_writes_its_figures(tmp_path):
 
 
 def test_an_image_set_reconstruction_lists_its_photos(tmp_path):
-    """The whole pipeline on the simulator's small image set (about 30 s: SfM on 44
-    photos of 456 x 304 px): the georeference stage's result and report.json carry the
-    photo table, and GPS without error leaves every photo used within centimetres."""
+    """The whole pipeline on the simulator's small image set (SfM on 44 photos of
+    456 x 304 px, with light SfM options): the georeference stage's result and
+    report.json carry the photo table, and GPS without error leaves every photo used
+    within centimetres."""
     run = image_run()
     folder = run.root / run.steps[0]["surveys"][0]["images_dir"]
-    reconstruct_survey(ReconstructionInputs(images=str(folder)), tmp_path / "work")
+    reconstruct_survey(
+        ReconstructionInputs(images=str(folder)),
+        tmp_path / "work",
+        ReconstructionOptions(sfm=SfmOptions(**LIGHT_SFM)),
+    )
     geo = json.loads((tmp_path / "work" / "georeference.json").read_text())
     report = json.loads((tmp_path / "work" / "report.json").read_text())
     assert geo["segments"][0]["fit"]["method"] == "robust_photos"
