@@ -16,6 +16,7 @@ from worker.detection_bench.runner import (
     format_tables,
     run_generator_benchmark,
 )
+from worker.pairgen.pair import PairUnavailable
 from worker.pipeline import detection_methods
 from worker.pipeline.comparison_layout import DETECTIONS_OUTPUT, DetectionMethod
 from worker.pipeline.stages import StageSpec
@@ -117,6 +118,34 @@ def test_a_raising_method_is_a_recorded_failure_and_the_run_goes_on(report):
     json.dumps(report["aggregates"], allow_nan=False)
 
 
+class NoSlidePairs(TinyGenerator):
+    """Its pairs with a slide cannot be made (as a flight that fails to reconstruct)."""
+
+    def make(self, seed: int, no_change: bool = False):
+        if not no_change:
+            raise PairUnavailable("step 2: the reconstruction failed: too few frames")
+        return super().make(seed, no_change)
+
+
+def test_a_pair_that_cannot_be_made_is_reported_and_the_run_goes_on(tmp_path):
+    lines: list[str] = []
+    report = run_generator_benchmark(
+        tmp_path, [NoSlidePairs()], ["threshold"], [0, 1], log=lines.append
+    )
+    assert report["unavailable_pairs"] == [
+        {
+            "generator": "tiny",
+            "seed": s,
+            "kind": "pair",
+            "reason": "step 2: the reconstruction failed: too few frames",
+        }
+        for s in (0, 1)
+    ]
+    assert [(r["seed"], r["kind"]) for r in report["runs"]] == [(0, "twin"), (1, "twin")]
+    assert "tiny seed0 pair: no pair (step 2" in lines[0]
+    assert "no pair: tiny seed 1 pair: step 2: the reconstruction failed" in format_tables(report)
+
+
 def test_unknown_method_is_refused_before_any_work(tmp_path):
     with pytest.raises(ValueError, match="unknown detection method nope"):
         run_generator_benchmark(tmp_path, [TinyGenerator()], ["nope"], [0])
@@ -143,7 +172,7 @@ def test_held_out_defaults_to_generators_the_scorer_was_not_fitted_to(monkeypatc
 
 
 def test_cli_generators_suite_on_the_tiny_generator(tmp_path, monkeypatch):
-    monkeypatch.setattr(runner, "available_generators", lambda: {"tiny": TinyGenerator()})
+    monkeypatch.setattr(runner, "available_generators", lambda *_: {"tiny": TinyGenerator()})
     out = tmp_path / "out" / "bench.json"
     args = ["detection", "--generator", "tiny", "--method", "threshold", "--seeds", "1"]
     args += ["--held-out", "tiny", "--work-dir", str(tmp_path / "work"), "--json", str(out)]
@@ -159,7 +188,7 @@ def test_cli_generators_suite_on_the_tiny_generator(tmp_path, monkeypatch):
 
 
 def test_cli_refuses_options_of_the_other_suite(tmp_path, monkeypatch):
-    monkeypatch.setattr(runner, "available_generators", lambda: {"tiny": TinyGenerator()})
+    monkeypatch.setattr(runner, "available_generators", lambda *_: {"tiny": TinyGenerator()})
     json_path = str(tmp_path / "x.json")
     result = CliRunner().invoke(
         bench, ["detection", "--scenario", "hillslope", "--json", json_path]

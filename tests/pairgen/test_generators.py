@@ -20,6 +20,7 @@ from worker.pairgen import GENERATORS, DsmPair, PairGenerator, SlideTruth, make_
 from worker.pairgen.errors import ERRORS, draw_errors
 from worker.pairgen.generators import PairParts
 from worker.pairgen.pair import PAIR_CRS, PAIR_ORIGIN_EN
+from worker.pairgen.real_terrain import sample_dem
 from worker.pairgen.slides import KINDS, SlideSpec, make_slide, place_slide
 from worker.pairgen.surfaces import Scene, Trees, apply_slides, render
 from worker.pairgen.terrain import TERRAINS
@@ -32,6 +33,7 @@ NAMES = (
     "agri-shallow",
     "urban-rockfall",
     "mountain-deep",
+    "real-relief",
 )
 # Errors whose value at a pixel depends on the DSM around it (resampling, inpainting):
 # a pair and its twin differ there near the slides, and only there.
@@ -368,3 +370,23 @@ def test_kind_functions_return_dh_footprint_and_truth() -> None:
     assert other is not None
     gap = ndimage.distance_transform_edt(~footprint)[other[1]].min()
     assert gap > 6
+
+
+def test_real_relief_keeps_the_real_slopes() -> None:
+    # Windows of the sample DEM scaled down to 0.5-1 m pixels keep the angles of the
+    # real Cumberland Mountains: median slope 13° over the whole DEM.
+    dem, row_m, col_m = sample_dem()
+    gy, gx = np.gradient(dem, row_m, col_m)
+    real = float(np.degrees(np.arctan(np.median(np.hypot(gx, gy)))))
+    slopes = []
+    for seed in range(6):
+        pixel = 0.5 + 0.1 * seed
+        ground = TERRAINS["real"]((400, 400), pixel, np.random.default_rng(seed))
+        sy, sx = np.gradient(ndimage.gaussian_filter(ground, 3 / pixel), pixel)
+        slopes.append(float(np.degrees(np.arctan(np.median(np.hypot(sx, sy))))))
+    assert real == pytest.approx(13.3, abs=0.5)
+    assert np.median(slopes) == pytest.approx(real, rel=0.25)
+    assert np.array_equal(
+        TERRAINS["real"]((64, 64), 0.5, np.random.default_rng(1)),
+        TERRAINS["real"]((64, 64), 0.5, np.random.default_rng(1)),
+    )

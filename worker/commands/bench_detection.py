@@ -243,7 +243,7 @@ def generators_suite(
     from worker.pipeline.detection_methods import method_names
 
     try:
-        generators = runner.resolve_generators(generator_names)
+        generators = runner.resolve_generators(generator_names, work_dir)
         chosen = runner.validate_methods(methods or (*method_names(), *runner.VARIANTS))
         names = [g.name for g in generators]
         held = runner.validate_held_out(held_out, names) if held_out else None
@@ -268,7 +268,7 @@ def generators_suite(
             report,
             work_dir,
             generators,
-            list(runner.available_generators().values()),
+            list(runner.available_generators(work_dir).values()),
             leave_one_out[0],
             range(leave_one_out[1]),
             log=lambda line: click.echo(line, err=True),

@@ -28,11 +28,12 @@ from worker.detection_bench.aggregate import aggregate_report
 from worker.detection_bench.detections import GridDetections, read_detections
 from worker.detection_bench.metrics import lod_m, score_pair
 from worker.detection_bench.tables import format_tables
-from worker.pairgen.pair import PAIR_CRS, TRUTH_JSON, DsmPair
+from worker.pairgen.pair import PAIR_CRS, TRUTH_JSON, DsmPair, PairUnavailable
 from worker.pipeline import comparison
 from worker.pipeline.detection_methods import method_names
 
 KINDS = ("pair", "twin")
+DEFAULT_WORK_DIR = Path("data/bench-detection-generators")
 
 
 class PairGenerator(Protocol):
@@ -41,18 +42,23 @@ class PairGenerator(Protocol):
     def make(self, seed: int, no_change: bool = False) -> DsmPair: ...
 
 
-def available_generators() -> Mapping[str, PairGenerator]:
-    """The pair generators (worker/pairgen/) and the survey simulator's analytic pairs."""
+def available_generators(work_dir: Path | None = None) -> Mapping[str, PairGenerator]:
+    """The pair generators (worker/pairgen/), the survey simulator's analytic pairs and
+    the DSMs reconstructed from its video (cached under `work_dir`/reconstructed)."""
+    from worker.detection_bench.reconstructed_pairs import ReconstructedPairs
     from worker.detection_bench.simulator_pairs import SimulatorPairs
     from worker.pairgen import GENERATORS
 
     simulator = SimulatorPairs()
-    return {**GENERATORS, simulator.name: simulator}
+    video = ReconstructedPairs(Path(work_dir or DEFAULT_WORK_DIR) / "reconstructed")
+    return {**GENERATORS, simulator.name: simulator, video.name: video}
 
 
-def resolve_generators(names: Sequence[str] | None = None) -> list[PairGenerator]:
+def resolve_generators(
+    names: Sequence[str] | None = None, work_dir: Path | None = None
+) -> list[PairGenerator]:
     """Generators by name through the registry; all of them when `names` is empty."""
-    registry = available_generators()
+    registry = available_generators(work_dir)
     if not names:
         return list(registry.values())
     unknown = [n for n in names if n not in registry]
@@ -204,11 +210,24 @@ def run_generator_benchmark(
     work_dir = Path(work_dir)
     pairs: list[dict[str, Any]] = []
     runs: list[dict[str, Any]] = []
+    unavailable: list[dict[str, Any]] = []
     for generator in generators:
         for seed in seeds:
             for kind in KINDS:
                 # Only this pair is alive: the previous one is dropped before making it.
-                pair = generator.make(seed, no_change=kind == "twin")
+                try:
+                    pair = generator.make(seed, no_change=kind == "twin")
+                except PairUnavailable as exc:
+                    unavailable.append(
+                        {
+                            "generator": generator.name,
+                            "seed": seed,
+                            "kind": kind,
+                            "reason": str(exc),
+                        }
+                    )
+                    log(f"{generator.name} seed{seed} {kind}: no pair ({exc})")
+                    continue
                 folder = work_dir / "pairs" / generator.name / f"seed{seed}" / kind
                 ensure_written(pair, folder)
                 pairs.append(pair_record(pair, kind))
@@ -226,6 +245,7 @@ def run_generator_benchmark(
         "seeds": list(seeds),
         "held_out": held_out,
         "pairs": pairs,
+        "unavailable_pairs": unavailable,
         "runs": runs,
     }
     report["aggregates"] = aggregate_report(runs, methods, names, report["held_out"])

@@ -58,7 +58,11 @@ def format_tables(report: dict[str, Any]) -> str:
         "m2 per km2 on no-change twins; |area e|, |vol e|: median relative errors of "
         "found slides; s/pair: median seconds per comparison; fail: failed runs."
     )
-    return "\n\n".join([*blocks, legend])
+    missing = [
+        f"no pair: {u['generator']} seed {u['seed']} {u['kind']}: {u['reason']}"
+        for u in report.get("unavailable_pairs") or []
+    ]
+    return "\n\n".join([*blocks, legend, *(["\n".join(missing)] if missing else [])])
 
 
 __all__ = ["format_tables"]

@@ -314,6 +314,25 @@ GENERATORS: dict[str, PairGenerator] = {
             nmad_per_sigma=1.8,
             error_params={"shift_px": (0.2, 3.0), "vertical_m": 0.5},
         ),
+        PairGenerator(
+            name="real-relief",
+            summary="Real Appalachian relief (matplotlib's sample USGS DEM of the Jacksboro "
+            "fault) scaled down with its slopes kept, under forest (cover 5-40 %), 0.5-1 m "
+            "pixels; rotational slumps 20-70 m, 1-8 m deep, and debris flows; white + "
+            "correlated noise, tilt and a post shift up to 2 px.",
+            terrain="real",
+            slide_specs=(
+                SlideSpec("rotational", (20.0, 70.0), (1.0, 8.0)),
+                SlideSpec("debris-flow", (8.0, 25.0), (1.0, 4.0)),
+            ),
+            surface="forest",
+            surface_params={"density": (0.05, 0.4)},
+            errors=("white", "correlated", "tilt", "shift"),
+            pixel_size=(0.5, 1.0),
+            noise_sigma_m=(0.05, 0.6),
+            nmad_per_sigma=2.6,
+            error_params={"shift_px": (0.2, 2.0), "vertical_m": 0.5},
+        ),
     )
 }
 

@@ -36,6 +36,11 @@ PAIR_ORIGIN_EN = (500_000.0, 3_900_000.0)
 PRE_FILE, POST_FILE, TRUTH_FILE, TRUTH_JSON = "pre.tif", "post.tif", "truth.tif", "truth.json"
 
 
+class PairUnavailable(Exception):
+    """A generator could not make this pair (e.g. a simulated flight failed to
+    reconstruct); the message says why. The benchmark reports it and goes on."""
+
+
 @dataclass
 class SlideTruth:
     """One planted landslide: its footprint and size, in the pre survey's frame."""

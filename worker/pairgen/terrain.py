@@ -22,6 +22,7 @@ from worker.pairgen.fields import (
     smooth,
     smoothstep,
 )
+from worker.pairgen.real_terrain import real_relief
 
 TerrainModel = Callable[..., np.ndarray]
 
@@ -281,6 +282,7 @@ def mountain(
 
 TERRAINS: dict[str, TerrainModel] = {
     "fractal": fractal,
+    "real": real_relief,
     "ridge-valley": ridge_valley,
     "terraced": terraced,
     "agricultural": agricultural,
