@@ -285,3 +285,19 @@ def test_stereo_partners_are_the_neighbours_on_both_sides_along_the_line():
     assert sorted(partners[2]) == [1, 3]
     assert partners[4] == [3]
     assert all(5 not in chosen for chosen in partners[:5]) and partners[5] == []
+
+
+def test_a_view_meets_the_crowns_before_the_ground_between_them():
+    """Ground at z = 0 with crowns 10 m up over a fifth of it: the image border of a
+    nadir camera 50 m above the ground meets the crowns' surface, so its view for the
+    overlap figures is cast 40 m below it (80 x 40 m), where the plane fitted through
+    all it sees (under 2 m up) gives more than 96 x 48 m."""
+    ground = ground_lattice(-80.0, -50.0, 80.0, 50.0, 1.0)
+    crowns = ground[::5].copy()
+    crowns[:, 2] = 10.0
+    sparse = survey_map([(0.0, 0.0)], 50.0, np.vstack([ground, crowns]))
+    seen = survey_footprints(sparse, 1.0)
+    assert seen is not None and seen.views[0].area == pytest.approx(80.0 * 40.0, rel=0.01)
+    (fitted,) = camera_footprints(sparse)
+    assert fitted.area > 96.0 * 48.0
+    assert seen.reach.contains(fitted)

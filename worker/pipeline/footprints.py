@@ -5,7 +5,9 @@ sees (`views`, the overlap figures) the plane is fitted to the sparse points it 
 tilted with the slope: on a hillside a horizontal plane puts the uphill edge of the
 footprint too far out and the downhill edge too near, and the overlap area it gives is
 then larger than what the photos share (measured: a hillslope photo set's coverage read
-0.62 with level planes). How far it can see at most (`reach`, the DSM's extent) uses a
+0.62 with level planes). The plane is raised to the upper part of the heights the camera
+sees (`VIEW_SURFACE_QUANTILE`): the image border meets tree crowns and mound tops before
+the ground between them. How far it can see at most (`reach`, the DSM's extent) uses a
 horizontal plane at a low quantile of those heights, since lower ground lies farther out
 along the edge rays. Heights are kept within the range of the whole map's points so that
 a camera of a bad segment, whose points may be anywhere, still gets a footprint near the
@@ -41,6 +43,17 @@ EDGE_SAMPLES = 8
 MIN_OBSERVED_POINTS = 20
 # Below this height above its ground (metres) a camera's footprint is meaningless.
 MIN_CAMERA_HEIGHT_M = 0.5
+# A camera's view for the overlap figures: its image border meets the first surface it
+# crosses, the upper part of what the camera sees (tree crowns, mound tops) rather than
+# its middle, so the view is cast on its fitted plane raised to this quantile of the
+# heights above it. Chosen by how well the two-view overlap matches the truth's (the
+# truth DSM seen from the cameras moved onto the truth, simulated photo sets): on the
+# forested hillslope (6 sets) intersection over union 0.93 (median plane: 0.91), area
+# 2.3-3.9 % above the truth's instead of 7.6-9.1 %; on the mounds (3 sets) 0.992-0.994
+# (median plane 0.995-0.996), area 0.4-0.7 % below. Of 0.75, 0.8, 0.9 and 0.95, tried
+# on the first set of each scene, 0.9 had the best mean of the two; 0.98 did worse on the
+# hillslope.
+VIEW_SURFACE_QUANTILE = 0.9
 
 
 def ground_heights(
@@ -129,13 +142,17 @@ def camera_footprint(
 
 
 def ground_planes(
-    sparse: SparseMap, clip_quantiles: tuple[float, float] = (0.02, 0.98), max_slope: float = 2.0
+    sparse: SparseMap,
+    clip_quantiles: tuple[float, float] = (0.02, 0.98),
+    max_slope: float = 2.0,
+    surface_quantile: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per keyframe: the ground plane through the sparse points it observes, as (height
     below the camera (K,), slope dz/dx, dz/dy (K, 2)), fitted by least squares and once
-    more without the points beyond 3 robust sigmas (trees, a wrong match). Heights are
-    kept within the `clip_quantiles` of the map's points, slopes within `max_slope`; a
-    keyframe observing too few points gets the map's median height and a level plane."""
+    more without the points beyond 3 robust sigmas (trees, a wrong match), then, with
+    `surface_quantile`, raised to that quantile of the points' heights above it. Heights
+    are kept within the `clip_quantiles` of the map's points, slopes within `max_slope`;
+    a keyframe observing too few points gets the map's median height and a level plane."""
     heights = ground_heights(sparse, 0.5, clip_quantiles)
     slopes = np.zeros((sparse.kf_t.size, 2))
     if not sparse.obs_kf.size or not np.isfinite(heights).any():
@@ -163,7 +180,8 @@ def ground_planes(
             keep = np.abs(residual) <= max(3.0 * mad, 1e-6)
             if keep.sum() < MIN_OBSERVED_POINTS:
                 break
-        heights[i] = float(np.clip(coef[0], lo, hi))
+        lift = 0.0 if surface_quantile is None else float(np.quantile(residual, surface_quantile))
+        heights[i] = float(np.clip(coef[0] + lift, lo, hi))
         slopes[i] = np.clip(coef[1:], -max_slope, max_slope)
     return heights, slopes
 
@@ -172,12 +190,14 @@ def camera_footprints(
     sparse: SparseMap,
     ground_quantile: float | None = None,
     max_range_factor: float = 4.0,
+    surface_quantile: float | None = None,
 ) -> list[Polygon | None]:
     """Per keyframe of `sparse` (in a metric, z-up frame): its footprint on the ground
-    plane fitted to what it sees, or with `ground_quantile` on the level ground at that
-    quantile of the heights it sees (see the module doc); None where it has none."""
+    plane fitted to what it sees (raised to `surface_quantile` of the heights above it,
+    when given), or with `ground_quantile` on the level ground at that quantile of the
+    heights it sees (see the module doc); None where it has none."""
     if ground_quantile is None:
-        heights, slopes = ground_planes(sparse)
+        heights, slopes = ground_planes(sparse, surface_quantile=surface_quantile)
     else:
         heights = ground_heights(sparse, ground_quantile)
         slopes = np.zeros((sparse.kf_t.size, 2))
@@ -314,10 +334,11 @@ def points_inside(points: np.ndarray, region: BaseGeometry, resolution_m: float)
 
 @dataclass
 class SurveyFootprints:
-    """What the cameras of a survey see: `views`, each keyframe's footprint at the median
-    ground it sees (None where it has none), and `reach`, the union of the footprints at
-    the low ground each sees, grown by `margin_m`: where a point the cameras measured
-    can lie."""
+    """What the cameras of a survey see: `views`, each keyframe's footprint on the
+    surface its image border meets (`VIEW_SURFACE_QUANTILE`; None where it has none),
+    and `reach`, the union of the footprints on the ground each sees (its fitted plane,
+    and its low ground), grown by `margin_m`: where a point the cameras measured can
+    lie."""
 
     views: list[Polygon | None]
     reach: BaseGeometry
@@ -335,13 +356,16 @@ def survey_footprints(
     larger of `margin_fraction` of the median footprint's size (square root of its area:
     pose and ground-height errors scale with it) and `margin_cells` DSM cells. None when
     no keyframe has a footprint."""
-    views = camera_footprints(sparse)
-    sizes = [np.sqrt(p.area) for p in views if p is not None]
+    # Where points may lie is bounded by the ground each camera sees, not by the surface
+    # its border meets first: the footprints on the fitted planes, and on the low ground.
+    fitted = camera_footprints(sparse)
+    sizes = [np.sqrt(p.area) for p in fitted if p is not None]
     if not sizes:
         return None
     margin = max(margin_fraction * float(np.median(sizes)), margin_cells * resolution_m)
     far = camera_footprints(sparse, ground_quantile=low_ground_quantile)
-    reach = footprint_union([*far, *views], margin)
+    reach = footprint_union([*far, *fitted], margin)
+    views = camera_footprints(sparse, surface_quantile=VIEW_SURFACE_QUANTILE)
     return SurveyFootprints(views=views, reach=reach, margin_m=margin)
 
 
