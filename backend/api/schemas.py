@@ -80,7 +80,7 @@ class QualityCheckOut(BaseModel):
 
     name: str = Field(
         description="`georeference_accuracy`, `georeference_residual`, `overlap_coverage`, "
-        "`segments_dropped` or `photo_outliers`."
+        "`segments_dropped`, `photo_outliers` or `time_offset`."
     )
     value: float | None = Field(description="The survey's figure (metres, share or count).")
     bound: float | None = Field(description="The bound it is held to; None for a count.")

@@ -43,7 +43,7 @@ export interface SurveyQuality {
 
 /** One check of the verdict: the survey's figure, its bound and both in plain words. */
 export interface QualityCheck {
-  name: "georeference_accuracy" | "georeference_residual" | "overlap_coverage" | "segments_dropped" | "photo_outliers";
+  name: "georeference_accuracy" | "georeference_residual" | "overlap_coverage" | "segments_dropped" | "photo_outliers" | "time_offset";
   value: number | null;
   bound: number | null;
   passed: boolean;

@@ -18,6 +18,10 @@ not got, such as the stated accuracy of a stand-alone GPS log, is not made):
 - `segments_dropped`: flight segments the georeference could not place and left out;
   passes while one remains (with none the job fails), its message says how many went.
 - `photo_outliers`: the share of a photo set's photos whose GPS was left out as wrong.
+- `time_offset`: a video's offset to its flight log could be tied down (the log's clock,
+  its recording span, the video's creation time or the image motion); an ambiguous one
+  (`time_offset.TimeOffset.ambiguous_reason`) fails, since positions matched to the wrong
+  part of a flight place the DSM metres off with residuals that look fine.
 
 A survey that misses a bound is still a DSM: the verdict says how far to trust it, and
 the report lists every failed check's message among its warnings, so no miss is silent.
@@ -71,6 +75,7 @@ def survey_quality(
         _overlap_check(dsm, bounds),
         _segments_check(geo, segments) if geo else None,
         _photo_check(geo.get("photos"), bounds),
+        _time_offset_check(geo.get("time_offset")),
     ]
     checks = [c for c in found if c is not None]
     return {"passed": all(c["passed"] for c in checks), "checks": checks}
@@ -261,6 +266,43 @@ def _photo_check(
             "remaining photos is suspect too (bad reception or a wrong log)."
         )
     return _check("photo_outliers", share, bound, passed, message)
+
+
+# How each source of the offset is told in a message.
+_OFFSET_SOURCES = {
+    "srt": "the log's own clock, which is the video's",
+    "recording_flag": "the span the log marks as recording",
+    "creation_time": "the video's creation time",
+    "log_start": "the image motion",
+    "user": "the offset given",
+}
+_OFFSET_REFINED = {
+    "motion_correlation": "refined by the image motion",
+    "trajectory_fit": "refined on the reconstructed trajectory",
+}
+
+
+def _time_offset_check(offset: dict[str, Any] | None) -> dict[str, Any] | None:
+    if not offset or "ambiguous_reason" not in offset:
+        return None  # a result from before the check
+    source = offset.get("prior_source")
+    if source == "image_exif":
+        return None  # photos carry their own positions: no offset
+    reason = offset["ambiguous_reason"]
+    value = offset.get("offset_s")
+    if reason is None:
+        how = _OFFSET_SOURCES.get(str(source), str(source))
+        refined = _OFFSET_REFINED.get(str(offset.get("method")))
+        if refined and source != "log_start":
+            how += f", {refined}"
+        message = f"The flight log was matched to the video in time by {how}."
+    else:
+        message = (
+            f"The time offset between the video and its flight log is uncertain: {reason}. "
+            "Positions may have been matched to the wrong part of the flight, which places "
+            "the DSM metres off while its residuals look fine; give the offset if you know it."
+        )
+    return _check("time_offset", value, None, reason is None, message)
 
 
 def _count(n: int, noun: str) -> str:

@@ -16,6 +16,15 @@ Convention: `log_time = video_time + offset_s`.
    that minimises the residual of a similarity fit between camera positions and log
    positions, searched finely around the current estimate.
 
+Where the log marks its recording span, the offset is held to it: every estimate and the
+refinement search only offsets that keep the video inside that span (give or take
+`recording_tolerance_s`; `TimeOffset.allowed_s`). Image motion of a short flight over
+parallel lines matches several parts of a log about as well; the span says which part the
+video is. An offset that cannot be tied down (nothing ties the clocks and the motion does
+not tell, the motion matches best outside the marked span, several recording spans fit
+the video) is kept with its reason in `ambiguous_reason`: the report warns and the
+survey's quality verdict fails on it (quality.py), rather than a silent guess.
+
 `check_overlap` raises a clear error when the log does not cover the video.
 """
 
@@ -66,6 +75,9 @@ class TimeOffsetOptions:
     min_distinctness: float = 0.1  # peak minus the best score outside its own lobe
     highpass_s: float = 10.0  # slower changes of speed are removed before correlating
     min_overlap: float = 0.5  # share of the video the log must cover
+    # How far the video may reach beyond the log's recording span: the flag is sampled
+    # at the log's rate, and logged positions lag the camera by a few tenths of a second.
+    recording_tolerance_s: float = 1.0
 
 
 @dataclass
@@ -77,6 +89,11 @@ class TimeOffset:
     score: float | None = None
     observable: bool = False
     warnings: list[str] = field(default_factory=list)
+    # [lowest, highest] offset that keeps the video inside the log's recording span;
+    # None where the log marks none.
+    allowed_s: list[float] | None = None
+    # Why the offset could not be tied down (None: it could); see the module doc.
+    ambiguous_reason: str | None = None
 
     def __post_init__(self) -> None:
         # Read back from a stage's JSON the flags are plain strings: make them members.
@@ -89,32 +106,37 @@ class TimeOffset:
         d["prior_s"] = round(self.prior_s, 4)
         if self.score is not None:
             d["score"] = round(self.score, 4)
+        if self.allowed_s is not None:
+            d["allowed_s"] = [round(v, 4) for v in self.allowed_s]
         return d
+
+    def allows(self, offset_s: float) -> bool:
+        """Whether `offset_s` keeps the video inside the log's recording span."""
+        if self.allowed_s is None:
+            return True
+        return self.allowed_s[0] - 1e-9 <= offset_s <= self.allowed_s[1] + 1e-9
+
+    def mark_ambiguous(self, reason: str) -> None:
+        """Keep the offset, say why it is uncertain (the first reason stays)."""
+        self.warnings.append(f"the time offset between video and log is uncertain: {reason}")
+        if self.ambiguous_reason is None:
+            self.ambiguous_reason = reason
 
 
 def prior_offset(
     log: FlightLog,
     video_duration_s: float | None = None,
     video_creation_utc: str | None = None,
+    options: TimeOffsetOptions | None = None,
 ) -> TimeOffset:
     """The best guess before looking at any image (see the module doc)."""
+    options = options or TimeOffsetOptions()
     warnings: list[str] = []
     if log.time_base == "video":
         return TimeOffset(0.0, 0.0, PriorSource.srt, OffsetMethod.prior)
     segments = log.recording_segments()
     if segments:
-        if video_duration_s:
-            start, _ = min(segments, key=lambda s: abs((s[1] - s[0]) - video_duration_s))
-        else:
-            start = segments[0][0]
-        if len(segments) > 1:
-            warnings.append(
-                f"the log has {len(segments)} recording spans; took the one starting at "
-                f"{start:.1f} s, whose length best matches the video"
-            )
-        return TimeOffset(
-            start, start, PriorSource.recording_flag, OffsetMethod.prior, warnings=warnings
-        )
+        return _prior_from_recording(segments, video_duration_s, log, options)
     epoch = log.utc_epoch
     if video_creation_utc and epoch is not None:
         created = datetime.fromisoformat(video_creation_utc)
@@ -127,6 +149,45 @@ def prior_offset(
         "the offset is searched over the whole log"
     )
     return TimeOffset(0.0, 0.0, PriorSource.log_start, OffsetMethod.prior, warnings=warnings)
+
+
+def _prior_from_recording(
+    segments: list[tuple[float, float]],
+    video_duration_s: float | None,
+    log: FlightLog,
+    options: TimeOffsetOptions,
+) -> TimeOffset:
+    """The start of the recording span whose length best matches the video, and the
+    offsets that keep the video inside that span."""
+    if video_duration_s:
+        start, end = min(segments, key=lambda s: abs((s[1] - s[0]) - video_duration_s))
+    else:
+        start, end = segments[0]
+    result = TimeOffset(start, start, PriorSource.recording_flag, OffsetMethod.prior)
+    if len(segments) > 1:
+        result.warnings.append(
+            f"the log has {len(segments)} recording spans; took the one starting at "
+            f"{start:.1f} s, whose length best matches the video"
+        )
+    if not video_duration_s:
+        return result
+    tolerance = _recording_tolerance(log, options)
+    result.allowed_s = [start - tolerance, max(end - video_duration_s, start) + tolerance]
+    fitting = [s for s in segments if abs((s[1] - s[0]) - video_duration_s) <= tolerance]
+    if len(fitting) > 1:
+        spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in fitting)
+        result.mark_ambiguous(
+            f"{len(fitting)} of the log's recording spans are as long as the video "
+            f"({spans}); the one starting at {start:.1f} s was taken"
+        )
+    return result
+
+
+def _recording_tolerance(log: FlightLog, options: TimeOffsetOptions) -> float:
+    """`recording_tolerance_s`, or two log samples where the log is sparser."""
+    steps = np.diff(log.t)
+    step = float(np.median(steps)) if steps.size else 0.0
+    return max(options.recording_tolerance_s, 2.0 * step)
 
 
 def log_ground_speed(log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
@@ -172,9 +233,28 @@ def estimate_time_offset(
     """Correlate image motion (px/s at video times) with log speed / height.
 
     Returns the prior (method `prior`, observable False) when the correlation is weak
-    or not distinct, with a warning that says so.
+    or not distinct, with a warning that says so. Only offsets the prior allows (the
+    log's recording span) are taken; a prior that ties nothing and a motion that does not
+    tell leave the offset ambiguous (see the module doc).
     """
     options = options or TimeOffsetOptions()
+    result = _estimate(log, video_t, image_speed, prior, options)
+    if not result.observable and prior.prior_source == PriorSource.log_start:
+        result.mark_ambiguous(
+            "nothing ties the video's clock to the log's (no recording flag, no UTC time) "
+            "and the image motion does not tell the offset; the log's start was assumed. "
+            "Give the offset (time_offset_s) if the DSM looks wrong"
+        )
+    return result
+
+
+def _estimate(
+    log: FlightLog,
+    video_t: np.ndarray,
+    image_speed: np.ndarray,
+    prior: TimeOffset,
+    options: TimeOffsetOptions,
+) -> TimeOffset:
     video_t = np.asarray(video_t, dtype=float)
     image_speed = np.asarray(image_speed, dtype=float)
     ok = np.isfinite(image_speed)
@@ -185,6 +265,8 @@ def estimate_time_offset(
         prior.prior_source,
         OffsetMethod.prior,
         warnings=list(prior.warnings),
+        allowed_s=prior.allowed_s,
+        ambiguous_reason=prior.ambiguous_reason,
     )
     if video_t.size < 10 or video_t[-1] - video_t[0] < 5.0:
         result.warnings.append("video too short to estimate the time offset from motion")
@@ -205,6 +287,55 @@ def estimate_time_offset(
     if np.std(visual) < 1e-6 * max(np.mean(visual), 1e-9) or np.std(lsignal) < 1e-9:
         result.warnings.append("constant motion: the time offset cannot be observed")
         return result
+    offsets = _search_offsets(prior, grid, lt, options)
+    if offsets.size == 0:
+        result.warnings.append("the log is too short for the video")
+        return result
+    scores = np.array([_correlation(grid, visual, lgrid, lsignal, d, options) for d in offsets])
+    if not np.isfinite(scores).any():
+        result.warnings.append("the log and the video do not overlap at any tested offset")
+        return result
+    allowed = np.array([prior.allows(float(d)) for d in offsets])
+    inside = np.where(allowed, scores, np.nan)
+    if not np.isfinite(inside).any():
+        result.warnings.append(
+            "the log and the video do not overlap within the log's recording span"
+        )
+        return result
+    best = int(np.nanargmax(inside))
+    peak = float(inside[best])
+    _check_outside_the_span(result, offsets, scores, allowed, peak, options)
+    rival = _rival_peak(inside, best)
+    refined = _parabola(offsets, inside, best)
+    if _rising_beyond(scores, allowed, best):
+        result.score = peak
+        result.warnings.append(
+            f"image motion and log speed correlate best at the edge of the log's recording "
+            f"span (r = {peak:.2f}), not at a peak within it; kept the {prior.prior_source} "
+            f"offset {prior.offset_s:.2f} s"
+        )
+        return result
+    if peak < options.min_correlation or peak - rival < options.min_distinctness:
+        result.score = peak
+        result.warnings.append(
+            f"image motion and log speed correlate weakly (r = {peak:.2f}, next best "
+            f"{rival:.2f}); kept the {prior.prior_source} offset {prior.offset_s:.2f} s"
+        )
+        return result
+    if prior.allowed_s is not None:
+        refined = float(np.clip(refined, *prior.allowed_s))
+    result.offset_s = refined
+    result.method = OffsetMethod.motion_correlation
+    result.score = peak
+    result.observable = True
+    return result
+
+
+def _search_offsets(
+    prior: TimeOffset, grid: np.ndarray, lt: np.ndarray, options: TimeOffsetOptions
+) -> np.ndarray:
+    """The offsets tried: around the prior, the whole log when nothing ties the clocks,
+    and at least the whole range the log's recording span allows."""
     wide = prior.prior_source == PriorSource.log_start
     half = options.wide_search_s if wide else options.search_s
     lo = prior.offset_s - half
@@ -214,30 +345,44 @@ def estimate_time_offset(
     if wide:
         lo = lt[0] - grid[0] - (grid[-1] - grid[0]) * (1 - options.min_overlap)
         hi = lt[-1] - grid[0] - (grid[-1] - grid[0]) * options.min_overlap
-    offsets = np.arange(lo, hi + options.step_s / 2, options.step_s)
-    if offsets.size == 0:
-        result.warnings.append("the log is too short for the video")
-        return result
-    scores = np.array([_correlation(grid, visual, lgrid, lsignal, d, options) for d in offsets])
-    if not np.isfinite(scores).any():
-        result.warnings.append("the log and the video do not overlap at any tested offset")
-        return result
-    best = int(np.nanargmax(scores))
-    peak = float(scores[best])
-    rival = _rival_peak(scores, best)
-    refined = _parabola(offsets, scores, best)
-    if peak < options.min_correlation or peak - rival < options.min_distinctness:
-        result.score = peak
-        result.warnings.append(
-            f"image motion and log speed correlate weakly (r = {peak:.2f}, next best "
-            f"{rival:.2f}); kept the {prior.prior_source} offset {prior.offset_s:.2f} s"
+    if prior.allowed_s is not None:
+        lo, hi = min(lo, prior.allowed_s[0]), max(hi, prior.allowed_s[1])
+    return np.arange(lo, hi + options.step_s / 2, options.step_s)
+
+
+def _rising_beyond(scores: np.ndarray, allowed: np.ndarray, best: int) -> bool:
+    """Whether the best allowed score sits on the edge of the allowed offsets with a
+    higher score just outside: the correlation peaks elsewhere, not within the span."""
+    for beyond in (best - 1, best + 1):
+        outside = 0 <= beyond < scores.size and not allowed[beyond]
+        if outside and np.isfinite(scores[beyond]) and scores[beyond] > scores[best]:
+            return True
+    return False
+
+
+def _check_outside_the_span(
+    result: TimeOffset,
+    offsets: np.ndarray,
+    scores: np.ndarray,
+    allowed: np.ndarray,
+    peak_inside: float,
+    options: TimeOffsetOptions,
+) -> None:
+    """Motion that matches the log distinctly better outside the recording span than in
+    it contradicts the span (another flight's log, a flag that lies): ambiguous."""
+    outside = np.where(allowed, np.nan, scores)
+    if not np.isfinite(outside).any():
+        return
+    best = int(np.nanargmax(outside))
+    peak = float(outside[best])
+    if peak >= options.min_correlation and peak - peak_inside >= options.min_distinctness:
+        lo, hi = result.allowed_s or (np.nan, np.nan)
+        result.mark_ambiguous(
+            f"the image motion matches the log best at an offset of {offsets[best]:.1f} s "
+            f"(r = {peak:.2f}), which puts the video outside the recording the log marks "
+            f"(offsets {lo:.1f} to {hi:.1f} s, r = {peak_inside:.2f} there); the offset was "
+            "kept within the recording. Check that the log is this video's"
         )
-        return result
-    result.offset_s = refined
-    result.method = OffsetMethod.motion_correlation
-    result.score = peak
-    result.observable = True
-    return result
 
 
 def _correlation(
@@ -295,7 +440,8 @@ def refine_time_offset(
     search_s: float = 1.0,
     step_s: float = 0.02,
 ) -> TimeOffset:
-    """Search offsets within ±search_s of `current` for the smallest trajectory residual.
+    """Search offsets within ±search_s of `current` (and within the log's recording
+    span, `current.allowed_s`) for the smallest trajectory residual.
 
     `residual_at(offset)` returns the robust residual (metres) of the similarity fit
     between camera positions at `traj_t` and log positions at `traj_t + offset`
@@ -303,6 +449,10 @@ def refine_time_offset(
     change along the track makes it observable).
     """
     offsets = np.arange(current.offset_s - search_s, current.offset_s + search_s + 1e-9, step_s)
+    # Never an offset that moves the video out of the log's recording span.
+    offsets = offsets[[current.allows(float(d)) for d in offsets]]
+    if offsets.size < 3:
+        return TimeOffset(**{**asdict(current), "warnings": list(current.warnings)})
     costs = np.array([residual_at(float(d)) for d in offsets])
     result = TimeOffset(**{**asdict(current), "warnings": list(current.warnings)})
     if not np.isfinite(costs).any() or traj_t.size < 4:

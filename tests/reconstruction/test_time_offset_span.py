@@ -1,0 +1,122 @@
+"""A short video's time offset held to the span its flight log marks as recording
+(worker/pipeline/ingest/time_offset.py), and an offset that cannot be tied down reported
+as ambiguous, in the report and the survey's quality verdict, rather than guessed."""
+
+import numpy as np
+import pytest
+
+from worker.pipeline.ingest.flight_log import build_flight_log
+from worker.pipeline.ingest.time_offset import (
+    TimeOffset,
+    estimate_time_offset,
+    prior_offset,
+    refine_time_offset,
+)
+from worker.pipeline.quality import survey_quality
+
+RATE_HZ = 10.0
+VIDEO_S = 8.0
+
+
+def _speeds(seed: int, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Log times and a ground speed that changes at irregular times (turns, stops)."""
+    t = np.arange(0.0, duration, 1 / RATE_HZ)
+    knots = np.random.default_rng(seed).uniform(1.0, 9.0, int(duration / 2) + 2)
+    return t, np.interp(t, np.arange(knots.size) * 2.0, knots)
+
+
+def _log(seed: int, spans: list[tuple[float, float]], duration: float = 60.0):
+    """A log at 10 Hz, 60 m above take-off, flagged as recording during `spans`."""
+    t, speed = _speeds(seed, duration)
+    lat = 47 + np.cumsum(speed) / RATE_HZ / 111_195.0
+    recording = np.zeros(t.size, bool)
+    for a, b in spans:
+        recording |= (t >= a) & (t < b)
+    rows = [
+        {
+            "line": i + 2,
+            "t": float(t[i]),
+            "lat": float(lat[i]),
+            "lon": 8.0,
+            "alt": 500.0,
+            "rel_alt": 60.0,
+            "recording": int(recording[i]),
+        }
+        for i in range(t.size)
+    ]
+    return build_flight_log("flight.csv", "generic_csv", rows), t, speed
+
+
+def _motion(t: np.ndarray, speed: np.ndarray, true_offset: float, seed: int):
+    """Image motion (px/s) of an 8-s video that starts `true_offset` s into the log."""
+    video_t = np.arange(0.0, VIDEO_S, 1 / 30)
+    rng = np.random.default_rng(seed)
+    px = np.interp(video_t + true_offset, t, speed) / 60.0 * 500
+    return video_t, px + rng.normal(0, 1.0, video_t.size)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_the_offset_stays_in_the_recording_span(seed):
+    log, t, speed = _log(seed, [(20.0, 20.0 + VIDEO_S)])
+    prior = prior_offset(log, VIDEO_S)
+    assert prior.allowed_s == pytest.approx([19.0, 21.0], abs=0.11)
+    video_t, px = _motion(t, speed, 20.3, seed)
+    found = estimate_time_offset(log, video_t, px, prior)
+    # 8 s of motion place the video to a few tenths of a second (the trajectory fit then
+    # refines it), and never outside the span.
+    assert found.method == "motion_correlation"
+    assert found.offset_s == pytest.approx(20.3, abs=0.4)
+    assert found.allows(found.offset_s) and found.ambiguous_reason is None
+    # The refinement searches only offsets the span allows: a residual that is smallest
+    # 3 s away (a parallel flight line) is never reached.
+    refined = refine_time_offset(found, video_t, lambda d: abs(d - 23.5), search_s=5.0)
+    assert refined.allows(refined.offset_s) and refined.offset_s <= 21.0 + 1e-9
+
+
+def test_motion_that_fits_elsewhere_in_the_log_is_reported_not_followed():
+    # The log says the camera recorded from 20 s, but the video's motion is that of 35 s
+    # on: the log is another recording's, or its flag is wrong.
+    log, t, speed = _log(4, [(20.0, 20.0 + VIDEO_S)])
+    video_t, px = _motion(t, speed, 35.0, 4)
+    found = estimate_time_offset(log, video_t, px, prior_offset(log, VIDEO_S))
+    assert found.method == "prior" and found.offset_s == 20.0
+    assert "outside the recording the log marks" in found.ambiguous_reason
+    assert "an offset of 35.0 s" in found.ambiguous_reason
+    assert any("uncertain" in w for w in found.warnings)
+
+
+def test_two_recordings_as_long_as_the_video_are_ambiguous():
+    log, _, _ = _log(6, [(5.0, 5.0 + VIDEO_S), (30.0, 30.0 + VIDEO_S)])
+    prior = prior_offset(log, VIDEO_S)
+    assert prior.ambiguous_reason.startswith("2 of the log's recording spans")
+    single, _, _ = _log(6, [(5.0, 5.0 + VIDEO_S), (30.0, 50.0)])
+    assert prior_offset(single, VIDEO_S).ambiguous_reason is None
+
+
+def test_nothing_ties_the_clocks_and_no_motion_tells_is_ambiguous():
+    t = np.arange(0, 100, 0.1)
+    rows = [{"line": i, "t": ti, "lat": 47 + ti * 5 / 111195, "lon": 8.0} for i, ti in enumerate(t)]
+    log = build_flight_log("c.csv", "generic_csv", rows)
+    video_t = np.arange(0, 30, 1 / 30)
+    found = estimate_time_offset(log, video_t, np.full(video_t.size, 40.0), prior_offset(log))
+    assert not found.observable and "nothing ties the video's clock" in found.ambiguous_reason
+
+
+def _verdict(offset: TimeOffset) -> dict:
+    quality = survey_quality({"georeference": {"time_offset": offset.to_dict(), "segments": []}})
+    (check,) = [c for c in quality["checks"] if c["name"] == "time_offset"]
+    return check
+
+
+def test_the_quality_verdict_fails_on_an_ambiguous_offset():
+    log, t, speed = _log(4, [(20.0, 20.0 + VIDEO_S)])
+    video_t, px = _motion(t, speed, 35.0, 4)
+    ambiguous = estimate_time_offset(log, video_t, px, prior_offset(log, VIDEO_S))
+    check = _verdict(ambiguous)
+    assert not check["passed"] and "uncertain" in check["message"]
+    assert "wrong part of the flight" in check["message"]
+    video_t, px = _motion(t, speed, 20.3, 4)
+    sound = estimate_time_offset(log, video_t, px, prior_offset(log, VIDEO_S))
+    check = _verdict(sound)
+    assert check["passed"] and check["value"] == pytest.approx(20.3, abs=0.4)
+    assert "the span the log marks as recording, refined by the image motion" in check["message"]
