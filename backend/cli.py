@@ -1,5 +1,6 @@
 """The `slidewatch` command: servers, administration, and the pipeline without any server."""
 
+import importlib
 import os
 import signal
 import subprocess
@@ -10,17 +11,45 @@ from pathlib import Path
 import click
 
 from backend.config import Settings, get_settings
-from worker.pipeline.detection_methods import load_method_modules
 
 ADMIN_TOKEN_FILE = "admin-token"
 ADMIN_PASSWORD_FILE = "admin-password"
 
+# The library's commands, imported only when one of them is run (or listed by --help):
+# they import the whole pipeline, seconds that `slidewatch worker` and `beat` would spend
+# before handing over to Celery, which imports what it needs itself.
+PIPELINE_COMMANDS = {
+    "bench": "worker.commands.bench:bench",
+    "calibrate": "worker.commands.calibrate:calibrate",
+    "detect": "worker.commands.detect:detect",
+    "reconstruct": "worker.commands.reconstruct:reconstruct",
+    "simulate": "worker.commands.simulate:simulate_command",
+    "train": "worker.commands.train:train",
+    "train-scorer": "worker.commands.train_scorer:train_scorer_command",
+}
 
-@click.group()
-def main() -> None:
+
+class _Commands(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *PIPELINE_COMMANDS})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in PIPELINE_COMMANDS:
+            module, _, name = PIPELINE_COMMANDS[cmd_name].partition(":")
+            return getattr(importlib.import_module(module), name)
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group(cls=_Commands)
+@click.pass_context
+def main(ctx: click.Context) -> None:
     """slidewatch: landslide detection from multi-temporal drone surveys."""
-    # Before a subcommand parses its options: `detect --method` offers registered methods.
-    load_method_modules(get_settings().detection_method_modules)
+    if ctx.invoked_subcommand in PIPELINE_COMMANDS:
+        # Before the command parses its options: `detect --method` offers registered
+        # methods. The servers register them in their own processes (backend/wiring.py).
+        from worker.pipeline.detection_methods import load_method_modules
+
+        load_method_modules(get_settings().detection_method_modules)
 
 
 @main.command()
@@ -238,26 +267,6 @@ def run() -> None:
         for process in (api_process, worker_process):
             process.wait(timeout=30)
 
-
-def _register_pipeline_commands() -> None:
-    from worker.commands.bench import bench
-    from worker.commands.calibrate import calibrate
-    from worker.commands.detect import detect
-    from worker.commands.reconstruct import reconstruct
-    from worker.commands.simulate import simulate_command
-    from worker.commands.train import train
-    from worker.commands.train_scorer import train_scorer_command
-
-    main.add_command(bench)
-    main.add_command(calibrate)
-    main.add_command(train_scorer_command)
-    main.add_command(detect)
-    main.add_command(reconstruct)
-    main.add_command(simulate_command)
-    main.add_command(train)
-
-
-_register_pipeline_commands()
 
 if __name__ == "__main__":
     main()
