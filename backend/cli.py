@@ -122,6 +122,9 @@ def worker_command(settings: Settings, with_beat: bool) -> list[str]:
         str(settings.worker_concurrency),
         "--queues",
         "slidewatch",
+        # Mingle asks the other workers for the tasks they revoked, waiting a second for
+        # answers at every start; slidewatch never revokes a task (jobs live in the database).
+        "--without-mingle",
     ]
     if with_beat:
         schedule = settings.data_dir / "beat-schedule"
