@@ -15,31 +15,51 @@ from owslib.wmts import WebMapTileService
 from PIL import Image
 from rio_cogeo.cogeo import cog_validate
 
-from tests.monitoring_helpers import LiveServer, finished_comparison, token_for
+from backend.config import Settings
+from tests.monitoring_helpers import LiveServer, app_for, finished_comparison, token_for
 from worker.simulator.dsm_pair import DsmPairPaths
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 
 
-@pytest.fixture
-def token(embedded_app: FastAPI) -> str:
-    return token_for(embedded_app)
+@pytest.fixture(scope="module")
+def compared(
+    tmp_path_factory: pytest.TempPathFactory, gis_pair: DsmPairPaths
+) -> Iterator[tuple[FastAPI, dict[str, int]]]:
+    """An app on the embedded default with one finished comparison, and its ids: made once
+    for the tests here that only read it (running the comparison takes seconds)."""
+    settings = Settings(data_dir=tmp_path_factory.mktemp("tiles") / "data")
+    with pytest.MonkeyPatch.context() as monkeypatch, app_for(settings, monkeypatch) as app:
+        with TestClient(app) as client:
+            auth = {"Authorization": f"Bearer {token_for(app)}"}
+            ids = finished_comparison(client, auth, gis_pair)
+        yield app, ids
 
 
 @pytest.fixture
-def client(embedded_app: FastAPI) -> Iterator[TestClient]:
-    with TestClient(embedded_app) as test_client:
+def compared_app(compared: tuple[FastAPI, dict[str, int]]) -> FastAPI:
+    return compared[0]
+
+
+@pytest.fixture
+def ids(compared: tuple[FastAPI, dict[str, int]]) -> dict[str, int]:
+    return compared[1]
+
+
+@pytest.fixture
+def token(compared_app: FastAPI) -> str:
+    return token_for(compared_app)
+
+
+@pytest.fixture
+def client(compared_app: FastAPI) -> Iterator[TestClient]:
+    with TestClient(compared_app) as test_client:
         yield test_client
 
 
 @pytest.fixture
 def auth(token: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
-
-
-@pytest.fixture
-def ids(client: TestClient, auth: dict, gis_pair: DsmPairPaths) -> dict[str, int]:
-    return finished_comparison(client, auth, gis_pair)
 
 
 def _png(content: bytes) -> np.ndarray:
@@ -113,7 +133,27 @@ def test_bad_tile_requests_say_why(
     assert message in response.json()["detail"]
 
 
-def test_tiles_are_only_ours_and_need_a_token(client: TestClient, auth: dict, ids: dict) -> None:
+@pytest.fixture
+def own_client(embedded_app: FastAPI) -> Iterator[TestClient]:
+    with TestClient(embedded_app) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def own_auth(embedded_app: FastAPI) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token_for(embedded_app)}"}
+
+
+@pytest.fixture
+def own_ids(own_client: TestClient, own_auth: dict, gis_pair: DsmPairPaths) -> dict[str, int]:
+    return finished_comparison(own_client, own_auth, gis_pair)
+
+
+def test_tiles_are_only_ours_and_need_a_token(
+    own_client: TestClient, own_auth: dict, own_ids: dict
+) -> None:
+    # An app of its own: the site it adds would be seen by the tests of the shared one.
+    client, auth, ids = own_client, own_auth, own_ids
     other = client.post("/api/v1/sites", json={"name": "other"}, headers=auth).json()["id"]
     path = f"comparisons/{ids['comparison']}/tiles/dh/tilejson.json"
     assert client.get(f"/api/v1/sites/{other}/{path}", headers=auth).status_code == 404
@@ -123,9 +163,9 @@ def test_tiles_are_only_ours_and_need_a_token(client: TestClient, auth: dict, id
 
 
 def test_wmts_capabilities_parse_and_their_tiles_render(
-    embedded_app: FastAPI, token: str, ids: dict
+    compared_app: FastAPI, token: str, ids: dict
 ) -> None:
-    with LiveServer(embedded_app) as server:
+    with LiveServer(compared_app) as server:
         url = f"{server.url}/api/v1/sites/{ids['site']}/wmts/WMTSCapabilities.xml?api_key={token}"
         wmts = WebMapTileService(url)
         names = set(wmts.contents)
@@ -153,15 +193,15 @@ def test_wmts_capabilities_parse_and_their_tiles_render(
 
 
 def test_cog_reads_remotely_through_vsicurl_with_range_requests(
-    embedded_app: FastAPI, token: str, ids: dict
+    compared_app: FastAPI, token: str, ids: dict
 ) -> None:
-    with TestClient(embedded_app) as client:
+    with TestClient(compared_app) as client:
         products = client.get(
             f"/api/v1/sites/{ids['site']}/comparisons/{ids['comparison']}/products",
             headers={"Authorization": f"Bearer {token}"},
         ).json()
     dh = next(p for p in products if p["kind"] == "dh")
-    with LiveServer(embedded_app) as server:
+    with LiveServer(compared_app) as server:
         url = f"/vsicurl/{server.url}{dh['download_url']}?api_key={token}"
         with rasterio.Env(GDAL_DISABLE_READDIR_ON_OPEN="EMPTY_DIR"), rasterio.open(url) as src:
             assert src.crs.to_epsg() == 32632
