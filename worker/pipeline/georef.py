@@ -79,6 +79,9 @@ class GeorefOptions:
     sigma_tilt_deg: float = 1.0  # logged camera tilt (gravity-referenced: good)
     sigma_yaw_deg: float = 5.0  # logged heading (compass: biased by degrees)
     max_attitude_disagreement_deg: float = 15.0
+    # The least movement (horizontal, or vertical with the camera's logged attitude) of
+    # the logged positions a trajectory is georeferenced on: below it GNSS noise rules.
+    min_motion_m: float = 3.0
     # Without any logged attitude: assume the survey camera looked straight down on
     # average (mapping flights do), within this many degrees; None for oblique surveys.
     sigma_nadir_deg: float | None = 1.0
@@ -593,6 +596,33 @@ def accuracy_bounds(stated: np.ndarray, options: GeorefOptions) -> tuple[float, 
 RefineFn = Callable[[GeorefResult, MatchedPairs], dict[str, Any]]
 
 
+def _check_motion(pairs: MatchedPairs, options: GeorefOptions) -> None:
+    """GeoreferenceError when the logged positions moved too little to fix the scale and
+    rotation. A climb or descent counts where the log's camera attitude fixes the heading
+    (a nadir camera sees the ground change scale: the distance climbed is the scale)."""
+    extent = np.ptp(pairs.world, axis=0)
+    horizontal, vertical = float(np.hypot(extent[0], extent[1])), float(extent[2])
+    least = options.min_motion_m
+    if horizontal >= least:
+        return
+    attitude = pairs.world_rot is not None and options.attitude != "never"
+    if vertical >= least and attitude:
+        return
+    span = f"{pairs.t[0]:.1f}-{pairs.t[-1]:.1f} s of the video" if len(pairs) else "the video"
+    if vertical >= least:
+        raise GeoreferenceError(
+            f"the aircraft moved only {horizontal:.1f} m horizontally during {span}, "
+            f"climbing or descending {vertical:.1f} m: a vertical move gives the scale but "
+            "not the heading, and the flight log has no camera attitude to give it, so this "
+            "part cannot be georeferenced without ground control points"
+        )
+    raise GeoreferenceError(
+        f"the aircraft moved only {horizontal:.1f} m horizontally and {vertical:.1f} m "
+        f"vertically during {span}: too little to georeference without ground control "
+        "points"
+    )
+
+
 def georeference(
     trajectory: Trajectory,
     log: FlightLog,
@@ -621,12 +651,7 @@ def georeference(
             f"only {len(pairs)} camera positions fall within the flight log's time span "
             f"(offset {offset_s:.2f} s); the log and the video do not overlap enough"
         )
-    extent = np.ptp(pairs.world, axis=0)
-    if np.hypot(extent[0], extent[1]) < 3.0:
-        raise GeoreferenceError(
-            f"the aircraft moved only {np.hypot(extent[0], extent[1]):.1f} m during the "
-            "video: too little to georeference without ground control points"
-        )
+    _check_motion(pairs, options)
     crs = f"EPSG:{pairs.epsg}"
     warnings: list[str] = []
     if options.method == "paper4":

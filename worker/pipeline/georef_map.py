@@ -31,6 +31,7 @@ import pycolmap
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.georef import (
+    GeoreferenceError,
     GeorefOptions,
     GeorefResult,
     accuracy_bounds,
@@ -107,6 +108,7 @@ def georeference_map(
     results: list[dict[str, Any]] = []
     warnings: list[str] = []
     table: list[dict[str, Any]] | None = None if photos is None else []
+    several = len(sparse.segments) > 1
     for segment in sparse.segments:
         traj = sparse.trajectory(segment)
         try:
@@ -115,8 +117,10 @@ def georeference_map(
             else:
                 names = photo_names_at(traj.t, photos)
                 fit = georeference_photos(traj, names, log, offset_s, options.georef)
-        except InputError as exc:
-            if len(sparse.segments) == 1:
+        except (InputError, GeoreferenceError) as exc:
+            # One segment that cannot be placed (too little motion, no log over it) is
+            # left out with its reason; the others make the DSM.
+            if not several:
                 raise
             warnings.append(f"segment {segment} left out: {exc}")
             _drop_segment(sparse, segment)
@@ -143,7 +147,9 @@ def georeference_map(
         if fit.photos is not None:
             warnings += fit.warnings
     if not results:
-        raise InputError("no part of the reconstruction could be georeferenced")
+        raise InputError(
+            "no part of the reconstruction could be georeferenced: " + "; ".join(warnings)
+        )
     accuracy = position_accuracy(log, options.georef)
     if photos is None and accuracy is not None:
         results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
