@@ -1,8 +1,13 @@
 """Every endpoint but /health needs a valid API token."""
 
+from collections.abc import Iterator
+
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+
+from backend.config import Settings
+from tests.monitoring_helpers import app_for, token_for
 
 PROTECTED = [
     ("GET", "/api/v1/sites"),
@@ -109,8 +114,24 @@ def test_every_api_route_is_listed_here(app: FastAPI) -> None:
     assert routes == listed
 
 
+@pytest.fixture(scope="module")
+def refusing(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Iterator[tuple[TestClient, dict[str, str]]]:
+    """One app, with one valid token, for the requests below (134): each is refused before
+    it reads or writes anything, and building an app for each took most of the time."""
+    settings = Settings(data_dir=tmp_path_factory.mktemp("auth") / "data")
+    with (
+        pytest.MonkeyPatch.context() as monkeypatch,
+        app_for(settings, monkeypatch) as app,
+        TestClient(app) as client,
+    ):
+        yield client, {"Authorization": f"Bearer {token_for(app)}"}
+
+
 @pytest.mark.parametrize(("method", "path"), PROTECTED)
-def test_no_token_is_refused(client: TestClient, method: str, path: str) -> None:
+def test_no_token_is_refused(refusing: tuple, method: str, path: str) -> None:
+    client, _auth = refusing
     response = client.request(method, path)
     assert response.status_code == 401
     if method != "HEAD":  # a HEAD answer has no body
@@ -119,7 +140,8 @@ def test_no_token_is_refused(client: TestClient, method: str, path: str) -> None
 
 
 @pytest.mark.parametrize(("method", "path"), PROTECTED)
-def test_wrong_token_is_refused(client: TestClient, auth: dict, method: str, path: str) -> None:
+def test_wrong_token_is_refused(refusing: tuple, method: str, path: str) -> None:
+    client, _auth = refusing  # a valid token exists: the wrong one is still refused
     response = client.request(method, path, headers={"Authorization": "Bearer sw_not-a-token"})
     assert response.status_code == 401
     if method != "HEAD":
