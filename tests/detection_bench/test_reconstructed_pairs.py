@@ -3,6 +3,7 @@ reconstructed DSMs (hand-made here: simulating and reconstructing take minutes).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +104,7 @@ def test_the_pair_holds_what_both_surveys_saw(tmp_path):
     assert pair.surface_change[5:10, 45:50].all()
     assert not pair.surface_change[25:28, 5:8].any()
     assert pair.description["gnss"] in ("rtk", "standalone")
+    json.dumps(pair.truth_dict())  # written beside the pair as it stands
 
 
 def test_a_flight_that_failed_to_reconstruct_makes_the_pair_unavailable(tmp_path):

@@ -222,7 +222,7 @@ def _pair(
         description={
             "summary": generator.summary,
             "gnss": options.gnss,
-            "window_px": [window[0].start, window[1].start, *pre.shape],
+            "window_px": [int(window[0].start), int(window[1].start), *pre.shape],
             "random_slides": options.random_slides,
             "reconstructions": [{k: v for k, v in s.items() if k != "dsm"} for s in surveys],
         },
