@@ -45,6 +45,29 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         default=20 * 1024**3, description="Largest accepted upload, in bytes."
     )
+    max_request_bytes: int = Field(
+        default=2 * 1024**2,
+        gt=0,
+        description="Largest body of a request that is not an upload (JSON), in bytes.",
+    )
+    # Uploaded rasters: checked from their header before any pixel is read.
+    max_raster_pixels: int = Field(
+        default=1_000_000_000, gt=0, description="Most pixels of an uploaded DSM."
+    )
+    max_raster_dimension: int = Field(
+        default=100_000, gt=0, description="Most pixels of an uploaded DSM along one side."
+    )
+    max_raster_block_bytes: int = Field(
+        default=128 * 1024**2,
+        gt=0,
+        description="Largest tile or strip of an uploaded DSM once decompressed, in bytes "
+        "(it is decompressed whole).",
+    )
+    max_raster_compression_ratio: float = Field(
+        default=200.0,
+        gt=0,
+        description="Most times its file size an uploaded DSM may decompress to.",
+    )
     heartbeat_interval_s: float = Field(
         default=10.0, description="How often a running stage records that its worker lives."
     )

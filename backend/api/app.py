@@ -3,6 +3,7 @@
 from fastapi import APIRouter, FastAPI
 from sqlalchemy.orm import sessionmaker
 
+from backend.api.body_limits import BodyLimitMiddleware
 from backend.api.routes import (
     alerts,
     auth,
@@ -54,6 +55,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.sessionmaker = sessionmaker(bind=engine, expire_on_commit=False)
     app.state.storage = LocalStorage(settings.storage_dir)
     app.state.celery = create_celery(settings)
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_request_bytes)
 
     app.include_router(health.router)
     api = APIRouter(prefix=API_PREFIX)

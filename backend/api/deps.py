@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 from backend.config import Settings
 from backend.db.models import ApiToken, Site
 from backend.db.tokens import authenticate
+from backend.ids import RowId
 from backend.storage import LocalStorage
 
 Owned = TypeVar("Owned")
@@ -85,7 +86,7 @@ def require_token(
 CurrentToken = Annotated[ApiToken, Depends(require_token)]
 
 
-def get_site(site_id: int, session: SessionDep, _token: CurrentToken) -> Site:
+def get_site(site_id: RowId, session: SessionDep, _token: CurrentToken) -> Site:
     site = session.get(Site, site_id)
     if site is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"site {site_id} not found")
@@ -96,7 +97,7 @@ SiteDep = Annotated[Site, Depends(get_site)]
 
 
 def owned_by_site(
-    session: Session, model: type[Owned], site: Site, item_id: int, noun: str
+    session: Session, model: type[Owned], site: Site, item_id: RowId, noun: str
 ) -> Owned:
     """The `model` row `item_id` if it belongs to `site`; 404 otherwise, whoever owns it."""
     item = session.get(model, item_id)

@@ -7,11 +7,17 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
+from backend.geojson_input import check_area_of_interest
+from backend.ids import RowId
 from worker.pipeline.detection_methods import detection_methods
 
 
 class ORMModel(BaseModel):
     model_config = ConfigDict(from_attributes=True)
+
+
+def check_area(value: dict[str, Any] | None) -> dict[str, Any] | None:
+    return None if value is None else check_area_of_interest(value)
 
 
 def check_timezone(name: str | None) -> str | None:
@@ -28,7 +34,7 @@ def check_timezone(name: str | None) -> str | None:
 
 class SiteCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
-    description: str = ""
+    description: str = Field(default="", max_length=10_000)
     area_of_interest: dict[str, Any] | None = Field(
         default=None, description="GeoJSON Polygon or MultiPolygon in WGS84 lon/lat."
     )
@@ -37,15 +43,17 @@ class SiteCreate(BaseModel):
     )
 
     _timezone = field_validator("timezone")(check_timezone)
+    _area = field_validator("area_of_interest")(check_area)
 
 
 class SiteUpdate(BaseModel):
     name: str | None = Field(default=None, min_length=1, max_length=200)
-    description: str | None = None
+    description: str | None = Field(default=None, max_length=10_000)
     area_of_interest: dict[str, Any] | None = None
     timezone: str | None = Field(default=None, max_length=64)
 
     _timezone = field_validator("timezone")(check_timezone)
+    _area = field_validator("area_of_interest")(check_area)
 
 
 class SiteOut(ORMModel):
@@ -158,10 +166,11 @@ _METHODS_DOC = " ".join(f"`{m.name}`: {m.summary}" for m in detection_methods())
 
 
 class ComparisonCreate(BaseModel):
-    pre_survey_id: int
-    post_survey_id: int
+    pre_survey_id: RowId
+    post_survey_id: RowId
     method: str | None = Field(
         default=None,
+        max_length=64,
         description=f"Detection method. {_METHODS_DOC} Without one, the default of "
         "`GET /methods`. A cnn comparison runs the default detection model unless its "
         'parameters name one: {"cnn": {"model": "name@version"}} (see GET /models); a '

@@ -22,12 +22,15 @@ class ModelOut(BaseModel):
 
 class TrainingCreate(BaseModel):
     dataset: str = Field(
+        max_length=1024,
         description="Dataset manifest (slidewatch-detection-dataset/1), a path relative to "
-        "the storage root under datasets/."
+        "the storage root under datasets/.",
     )
-    model_kind: str = Field(default="slidenet", description="slidenet, patchnet-fixed/-loose")
+    model_kind: str = Field(
+        default="slidenet", max_length=32, description="slidenet, patchnet-fixed/-loose"
+    )
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
     options: dict[str, Any] = Field(
         default_factory=dict, description="Training options (epochs, steps_per_epoch, ...)."
     )

@@ -7,6 +7,7 @@ from urllib.parse import urlparse
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import DeliveryStatus, JobState
+from backend.ids import RowId
 from backend.services.alerts import EVENTS
 
 
@@ -151,7 +152,7 @@ class ScheduleOut(ORMModel):
 
 
 class ReportCreate(BaseModel):
-    comparison_id: int | None = Field(
+    comparison_id: RowId | None = Field(
         default=None, description="The comparison to report on; default: the site's latest."
     )
 

@@ -18,6 +18,7 @@ from sqlalchemy import Select, func, select
 from sqlalchemy.orm import Session, aliased
 
 from backend.db.models import Comparison, Detection, JobState, Site, Survey, SurveyStatus
+from backend.geojson_input import is_area_of_interest
 from worker.pipeline.geo import geojson_rfc7946
 
 BBox = tuple[float, float, float, float]
@@ -106,7 +107,9 @@ def _intersects(bounds: BBox | None, bbox: BBox) -> bool:
 
 
 def _site_geometry(site: Site) -> dict[str, Any] | None:
-    if site.area_of_interest:
+    # A site saved before areas were checked may hold one that is no GeoJSON: its
+    # surveys' extent stands in for it rather than break the collection for everyone.
+    if site.area_of_interest and is_area_of_interest(site.area_of_interest):
         return site.area_of_interest
     footprints = [shape(s.footprint) for s in site.surveys if s.footprint]
     if not footprints:

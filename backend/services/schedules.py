@@ -11,16 +11,19 @@ schedule that was due (once or many times) runs once.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from croniter import croniter
+from croniter import CroniterError, croniter
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from backend.db.models import JobState, Report, Schedule
+
+log = logging.getLogger(__name__)
 
 
 class ScheduleRejected(ValueError):
@@ -45,6 +48,13 @@ def check(cron: str, timezone: str) -> None:
             f"invalid cron expression {cron!r}: five fields, minute hour day-of-month month "
             "day-of-week, e.g. '0 6 * * 1' for Mondays at 06:00"
         )
+    try:
+        next_run(cron, timezone, utcnow())
+    except CroniterError:
+        # e.g. '0 0 30 2 *': valid fields, but no day they name exists.
+        raise ScheduleRejected(
+            f"cron expression {cron!r} never fires: no date has the day and month it names"
+        ) from None
 
 
 def next_run(cron: str, timezone: str, after: datetime) -> datetime:
@@ -73,7 +83,16 @@ def claim_due_runs(session: Session, now: datetime | None = None) -> list[Claime
     ).all()
     claimed: list[ClaimedRun] = []
     for schedule_id, site_id, seen, cron, timezone in due:
-        following = next_run(cron, timezone, max(now, _aware(seen)))
+        try:
+            following = next_run(cron, timezone, max(now, _aware(seen)))
+        except CroniterError:
+            # Saved before such expressions were refused: it can never run again.
+            log.warning("schedule %s: cron %r never fires; disabled", schedule_id, cron)
+            session.execute(
+                update(Schedule).where(Schedule.id == schedule_id).values(enabled=False)
+            )
+            session.commit()
+            continue
         moved = session.execute(
             update(Schedule)
             .where(Schedule.id == schedule_id, Schedule.next_run_at == seen)

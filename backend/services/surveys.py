@@ -13,6 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.db.models import Product, Site, StoredFile, Survey, SurveyKind, SurveyStatus
 from backend.geotiff import is_geotiff
+from backend.raster_limits import RasterLimits, check_raster_limits
 from backend.storage import LocalStorage, SavedFile, file_digest
 from backend.storage_layout import site_surveys_folder
 from worker.pipeline.cog import COG_MEDIA_TYPE, RasterRole, write_cog
@@ -30,17 +31,18 @@ async def create_dsm_survey(
     captured_at: datetime,
     original_name: str | None,
     max_bytes: int,
+    limits: RasterLimits,
 ) -> Survey:
     """Stream the upload to storage, check it is a usable DSM, then record it.
 
-    Raises UploadTooLarge or InputError; in every failure the file is removed and no
-    row is left behind.
+    Raises UploadTooLarge or InputError (RasterTooLarge beyond `limits`); in every failure
+    the file is removed and no row is left behind.
     """
     folder = site_surveys_folder(site.id)
     saved: SavedFile = await storage.save_stream(chunks, folder, ".tif", max_bytes)
     return await _record_dsm_survey(
         session, storage, site, saved, name=name, captured_at=captured_at,
-        original_name=original_name,
+        original_name=original_name, limits=limits,
     )  # fmt: skip
 
 
@@ -53,6 +55,7 @@ async def create_dsm_survey_from_file(
     name: str,
     captured_at: datetime,
     original_name: str | None,
+    limits: RasterLimits,
 ) -> Survey:
     """As create_dsm_survey, from a complete file on disk (a finished resumable upload),
     which is moved into storage. Raises InputError; on failure the file is removed."""
@@ -60,7 +63,7 @@ async def create_dsm_survey_from_file(
     saved = await run_in_threadpool(storage.adopt_file, source, folder, ".tif")
     return await _record_dsm_survey(
         session, storage, site, saved, name=name, captured_at=captured_at,
-        original_name=original_name,
+        original_name=original_name, limits=limits,
     )  # fmt: skip
 
 
@@ -73,6 +76,7 @@ async def _record_dsm_survey(
     name: str,
     captured_at: datetime,
     original_name: str | None,
+    limits: RasterLimits,
 ) -> Survey:
     """Check the saved file is a usable DSM, make its COG and record both (or neither)."""
     label = f"the upload {original_name!r}" if original_name else "the upload"
@@ -82,6 +86,11 @@ async def _record_dsm_survey(
         raise InputError(f"{label} is not a GeoTIFF (it is not a TIFF file)")
     cog_path = storage.new_relative_path(site_surveys_folder(site.id), ".cog.tif")
     try:
+        # From the header alone, before GDAL decompresses anything: a small file may
+        # declare more pixels than the server can afford to read.
+        await run_in_threadpool(
+            check_raster_limits, storage.absolute(saved.relative_path), limits, label
+        )
         info = await run_in_threadpool(inspect_dsm, storage.absolute(saved.relative_path), label)
         await run_in_threadpool(
             write_cog,

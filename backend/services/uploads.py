@@ -37,6 +37,8 @@ from backend.config import Settings
 from backend.db.arriving_uploads import part_path, part_relative_path
 from backend.db.models import Site, Survey, SurveyStatus, Upload, UploadState
 from backend.db.tokens import as_utc
+from backend.ids import parse_row_id
+from backend.raster_limits import RasterLimits
 from backend.services.survey_sources import SourceRejected, add_survey_file, check_file_name
 from backend.services.surveys import create_dsm_survey_from_file
 from backend.storage import LocalStorage, file_digest
@@ -122,7 +124,8 @@ def check_upload_request(
     Returns the validated details kept with the upload.
     """
     site_text = _required(metadata, "site_id", "the site it belongs to")
-    if not site_text.isdigit() or session.get(Site, int(site_text)) is None:
+    site_id = parse_row_id(site_text)
+    if site_id is None or session.get(Site, site_id) is None:
         raise UploadError(404, f"site {site_text} does not exist")
     filename = _required(metadata, "filename", "the file's name")
     if "/" in filename or "\\" in filename or filename in (".", ".."):
@@ -141,7 +144,7 @@ def check_upload_request(
     sha256 = metadata.get("sha256", "").lower() or None
     if sha256 is not None and not re.fullmatch(r"[0-9a-f]{64}", sha256):
         raise UploadError(400, "sha256 must be the file's SHA-256 as 64 hexadecimal digits")
-    details: dict[str, Any] = {"site_id": int(site_text), "filename": filename, "sha256": sha256}
+    details: dict[str, Any] = {"site_id": site_id, "filename": filename, "sha256": sha256}
     if purpose == "dsm":
         if not filename.lower().endswith(DSM_SUFFIXES):
             raise UploadError(
@@ -154,7 +157,8 @@ def check_upload_request(
     else:
         survey_text = _required(metadata, "survey_id", "the survey it belongs to")
         role = _required(metadata, "role", "video, log or image")
-        survey = session.get(Survey, int(survey_text)) if survey_text.isdigit() else None
+        survey_id = parse_row_id(survey_text)
+        survey = session.get(Survey, survey_id) if survey_id is not None else None
         if survey is None or survey.site_id != details["site_id"]:
             raise UploadError(404, f"survey {survey_text} not found in site {site_text}")
         if survey.status != SurveyStatus.receiving:
@@ -304,7 +308,9 @@ async def append(
     return new_offset
 
 
-async def complete(session: Session, storage: LocalStorage, upload: Upload) -> Upload:
+async def complete(
+    session: Session, storage: LocalStorage, upload: Upload, limits: RasterLimits
+) -> Upload:
     """Verify the whole file and hand it over; on failure it is removed and the upload
     records why (in plain words) and raises UploadError(422)."""
     path = part_path(storage, upload)
@@ -317,7 +323,7 @@ async def complete(session: Session, storage: LocalStorage, upload: Upload) -> U
                 f"{upload.filename} arrived damaged: its SHA-256 is {sha256}, the file sent "
                 f"had {upload.sha256}; upload it again"
             )
-        await _hand_over(session, storage, upload, path)
+        await _hand_over(session, storage, upload, path, limits)
     except (InputError, SourceRejected) as exc:
         _fail(session, upload, path, str(exc))
         raise UploadError(422, str(exc)) from None
@@ -340,7 +346,9 @@ def _fail(session: Session, upload: Upload, path: Path, reason: str) -> None:
     session.commit()
 
 
-async def _hand_over(session: Session, storage: LocalStorage, upload: Upload, path: Path) -> None:
+async def _hand_over(
+    session: Session, storage: LocalStorage, upload: Upload, path: Path, limits: RasterLimits
+) -> None:
     details = upload.details
     if upload.purpose == "dsm":
         site = session.get(Site, upload.site_id)
@@ -352,6 +360,7 @@ async def _hand_over(session: Session, storage: LocalStorage, upload: Upload, pa
             name=details["name"],
             captured_at=datetime.fromisoformat(details["captured_at"]),
             original_name=upload.filename,
+            limits=limits,
         )
         survey_id = survey.id
     else:

@@ -17,6 +17,7 @@ from backend.api.schemas_monitoring import (
     WebhookUpdate,
 )
 from backend.db.models import AlertSettings, Delivery, Webhook, utcnow
+from backend.ids import RowId
 from backend.services.alerts import alert_settings
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["alerts"])
@@ -65,7 +66,7 @@ def list_webhooks(site: SiteDep, session: SessionDep) -> list[Webhook]:
 
 @router.patch("/webhooks/{webhook_id}", response_model=WebhookOut)
 def update_webhook(
-    webhook_id: int, body: WebhookUpdate, site: SiteDep, session: SessionDep
+    webhook_id: RowId, body: WebhookUpdate, site: SiteDep, session: SessionDep
 ) -> Webhook:
     webhook = owned_by_site(session, Webhook, site, webhook_id, "webhook")
     for field, value in body.model_dump(exclude_unset=True).items():
@@ -76,7 +77,7 @@ def update_webhook(
 
 
 @router.delete("/webhooks/{webhook_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_webhook(webhook_id: int, site: SiteDep, session: SessionDep) -> Response:
+def delete_webhook(webhook_id: RowId, site: SiteDep, session: SessionDep) -> Response:
     """Delete the webhook with its deliveries."""
     session.delete(owned_by_site(session, Webhook, site, webhook_id, "webhook"))
     session.commit()

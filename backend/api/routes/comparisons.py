@@ -6,6 +6,7 @@ from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_b
 from backend.api.schemas import ComparisonCreate, ComparisonCreated, ComparisonOut, ProductOut
 from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
 from backend.db.models import Comparison, Job, Site
+from backend.ids import RowId
 from backend.services.comparisons import ComparisonRejected, create_comparison
 from backend.services.deletion import delete_comparison
 from worker.jobs.control import QueueUnavailable
@@ -13,7 +14,7 @@ from worker.jobs.control import QueueUnavailable
 router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
 
 
-def comparison_of_site(session: SessionDep, site: Site, comparison_id: int) -> Comparison:
+def comparison_of_site(session: SessionDep, site: Site, comparison_id: RowId) -> Comparison:
     return owned_by_site(session, Comparison, site, comparison_id, "comparison")
 
 
@@ -59,7 +60,7 @@ def list_comparisons(
 
 @router.get("/{comparison_id}", response_model=ComparisonOut)
 def get_comparison(
-    comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> ComparisonOut:
     comparison = comparison_of_site(session, site, comparison_id)
     return comparison_out(comparison, _job_of(session, comparison), storage)
@@ -71,7 +72,7 @@ def get_comparison(
     response_class=JSONResponse,
     responses={200: {"content": {"application/geo+json": {}}}},
 )
-def get_detections(comparison_id: int, site: SiteDep, session: SessionDep) -> JSONResponse:
+def get_detections(comparison_id: RowId, site: SiteDep, session: SessionDep) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
     collection = {
         "type": "FeatureCollection",
@@ -82,7 +83,7 @@ def get_detections(comparison_id: int, site: SiteDep, session: SessionDep) -> JS
 
 @router.get("/{comparison_id}/products", response_model=list[ProductOut])
 def list_comparison_products(
-    comparison_id: int, site: SiteDep, session: SessionDep
+    comparison_id: RowId, site: SiteDep, session: SessionDep
 ) -> list[ProductOut]:
     comparison = comparison_of_site(session, site, comparison_id)
     return [product_out(p) for p in comparison.products]
@@ -90,7 +91,7 @@ def list_comparison_products(
 
 @router.delete("/{comparison_id}", status_code=status.HTTP_204_NO_CONTENT)
 def remove_comparison(
-    comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> Response:
     comparison = comparison_of_site(session, site, comparison_id)
     delete_comparison(session, storage, comparison)

@@ -7,6 +7,7 @@ from fastapi.responses import JSONResponse
 
 from backend.api.deps import SessionDep, SiteDep, StorageDep
 from backend.api.routes.comparisons import comparison_of_site
+from backend.ids import RowId
 from backend.storage_layout import comparison_file
 
 router = APIRouter(prefix="/sites/{site_id}/comparisons", tags=["comparisons"])
@@ -22,7 +23,7 @@ CELLS_FILE = "cells.geojson"
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def get_cells(
-    comparison_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
     path = storage.absolute(comparison_file(comparison.id, CELLS_FILE))

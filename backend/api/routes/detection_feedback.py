@@ -13,6 +13,7 @@ from backend.api.deps import CurrentToken, SessionDep, SiteDep
 from backend.api.routes.comparisons import comparison_of_site
 from backend.api.schemas_map import FeedbackIn, FeedbackOut
 from backend.db.models import Detection, DetectionFeedback, Site
+from backend.ids import RowId
 from backend.services.feedback import give_verdict, training_labels, withdraw_verdict
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["feedback on detections"])
@@ -20,7 +21,7 @@ DETECTION = "/comparisons/{comparison_id}/detections/{detection_id}"
 
 
 def detection_of(
-    session: SessionDep, site: Site, comparison_id: int, detection_id: int
+    session: SessionDep, site: Site, comparison_id: RowId, detection_id: RowId
 ) -> Detection:
     comparison = comparison_of_site(session, site, comparison_id)
     detection = session.get(Detection, detection_id)
@@ -34,8 +35,8 @@ def detection_of(
 
 @router.put(f"{DETECTION}/feedback", response_model=FeedbackOut)
 def put_feedback(
-    comparison_id: int,
-    detection_id: int,
+    comparison_id: RowId,
+    detection_id: RowId,
     body: FeedbackIn,
     site: SiteDep,
     session: SessionDep,
@@ -48,7 +49,7 @@ def put_feedback(
 
 @router.get(f"{DETECTION}/feedback", response_model=list[FeedbackOut])
 def list_feedback(
-    comparison_id: int, detection_id: int, site: SiteDep, session: SessionDep
+    comparison_id: RowId, detection_id: RowId, site: SiteDep, session: SessionDep
 ) -> list[DetectionFeedback]:
     """Everyone's verdicts on the detection, with who and when."""
     return list(detection_of(session, site, comparison_id, detection_id).feedback)
@@ -56,8 +57,8 @@ def list_feedback(
 
 @router.delete(f"{DETECTION}/feedback", status_code=status.HTTP_204_NO_CONTENT)
 def delete_feedback(
-    comparison_id: int,
-    detection_id: int,
+    comparison_id: RowId,
+    detection_id: RowId,
     site: SiteDep,
     session: SessionDep,
     token: CurrentToken,

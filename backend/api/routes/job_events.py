@@ -21,6 +21,7 @@ from backend.api.deps import SessionDep, SiteDep
 from backend.api.routes.jobs import job_of_site
 from backend.api.serializers import job_out
 from backend.db.models import Job, JobState
+from backend.ids import RowId
 
 router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
 
@@ -30,7 +31,7 @@ RECONNECT_MS = 2000
 FINAL_STATES = (JobState.succeeded, JobState.failed)
 
 
-def _job_json(make_session: sessionmaker, job_id: int) -> tuple[str, bool]:
+def _job_json(make_session: sessionmaker, job_id: RowId) -> tuple[str, bool]:
     with make_session() as session:
         job = session.get(Job, job_id)
         if job is None:
@@ -40,7 +41,7 @@ def _job_json(make_session: sessionmaker, job_id: int) -> tuple[str, bool]:
 
 
 async def job_events(
-    request: Request, make_session: sessionmaker, job_id: int
+    request: Request, make_session: sessionmaker, job_id: RowId
 ) -> AsyncIterator[str]:
     yield f"retry: {RECONNECT_MS}\n\n"
     last, quiet, sent = None, 0.0, 0
@@ -66,7 +67,7 @@ async def job_events(
     responses={200: {"content": {"text/event-stream": {}}}},
 )
 def stream_job_events(
-    job_id: int, request: Request, site: SiteDep, session: SessionDep
+    job_id: RowId, request: Request, site: SiteDep, session: SessionDep
 ) -> StreamingResponse:
     job_of_site(session, site, job_id)
     session.rollback()  # hold no transaction while the stream lasts (it reads on its own)

@@ -5,12 +5,13 @@ from backend.api.deps import CeleryDep, SessionDep, SiteDep, owned_by_site
 from backend.api.schemas import JobOut
 from backend.api.serializers import job_out
 from backend.db.models import Job, JobState, Site
+from backend.ids import RowId
 from worker.jobs import control
 
 router = APIRouter(prefix="/sites/{site_id}/jobs", tags=["jobs"])
 
 
-def job_of_site(session: SessionDep, site: Site, job_id: int) -> Job:
+def job_of_site(session: SessionDep, site: Site, job_id: RowId) -> Job:
     return owned_by_site(session, Job, site, job_id, "job")
 
 
@@ -21,12 +22,12 @@ def list_jobs(site: SiteDep, session: SessionDep) -> list[JobOut]:
 
 
 @router.get("/{job_id}", response_model=JobOut, summary="Job state with per-stage progress")
-def get_job(job_id: int, site: SiteDep, session: SessionDep) -> JobOut:
+def get_job(job_id: RowId, site: SiteDep, session: SessionDep) -> JobOut:
     return job_out(job_of_site(session, site, job_id))
 
 
 @router.post("/{job_id}/retry", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
-def retry_job(job_id: int, site: SiteDep, session: SessionDep, celery: CeleryDep) -> JobOut:
+def retry_job(job_id: RowId, site: SiteDep, session: SessionDep, celery: CeleryDep) -> JobOut:
     """Run a failed job again from its failed stage; finished stages are not redone."""
     job = job_of_site(session, site, job_id)
     if job.state != JobState.failed:

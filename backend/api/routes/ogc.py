@@ -18,6 +18,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
 from fastapi.responses import JSONResponse
 
 from backend.api.deps import CurrentToken, SessionDep
+from backend.ids import RowId, parse_row_id
 from backend.services.features import (
     COLLECTIONS,
     Collection,
@@ -160,9 +161,9 @@ def items_query(
             description="RFC 3339 instant or interval: 2026-06-01T00:00:00Z/.., ../2026-07-01",
         ),
     ] = None,
-    site_id: Annotated[int | None, Query(description="Only features of this site.")] = None,
+    site_id: Annotated[RowId | None, Query(description="Only features of this site.")] = None,
     comparison_id: Annotated[
-        int | None, Query(description="detections: only those of this comparison.")
+        RowId | None, Query(description="detections: only those of this comparison.")
     ] = None,
 ) -> FeatureQuery:
     return FeatureQuery(
@@ -320,7 +321,11 @@ def item(
     _token: CurrentToken,
 ) -> JSONResponse:
     _collection(collection_id)
-    feature = get_feature(session, collection_id, int(feature_id)) if feature_id.isdigit() else None
+    feature = (
+        get_feature(session, collection_id, row_id)
+        if (row_id := parse_row_id(feature_id))
+        else None
+    )
     if feature is None:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND, f"feature {feature_id!r} not found in {collection_id!r}"

@@ -5,16 +5,17 @@ from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut
 from backend.api.serializers import product_out
 from backend.db.models import Product, Site
+from backend.ids import RowId
 
 router = APIRouter(prefix="/sites/{site_id}/products", tags=["products"])
 
 
-def product_of_site(session: SessionDep, site: Site, product_id: int) -> Product:
+def product_of_site(session: SessionDep, site: Site, product_id: RowId) -> Product:
     return owned_by_site(session, Product, site, product_id, "product")
 
 
 @router.get("/{product_id}", response_model=ProductOut)
-def get_product(product_id: int, site: SiteDep, session: SessionDep) -> ProductOut:
+def get_product(product_id: RowId, site: SiteDep, session: SessionDep) -> ProductOut:
     return product_out(product_of_site(session, site, product_id))
 
 
@@ -24,7 +25,7 @@ def get_product(product_id: int, site: SiteDep, session: SessionDep) -> ProductO
     response_class=FileResponse,
 )
 def download_product(
-    product_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    product_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     product = product_of_site(session, site, product_id)
     path = storage.absolute(product.file.path)

@@ -11,6 +11,7 @@ from sqlalchemy import select
 from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas_monitoring import ReportCreate, ReportOut
 from backend.db.models import Report, StoredFile
+from backend.ids import RowId
 from backend.services.reports import ReportRejected, request_report, shown_status
 from backend.urls import api_url
 
@@ -57,7 +58,7 @@ def list_reports(site: SiteDep, session: SessionDep) -> list[ReportOut]:
 
 
 @router.get("/{report_id}", response_model=ReportOut)
-def get_report(report_id: int, site: SiteDep, session: SessionDep) -> ReportOut:
+def get_report(report_id: RowId, site: SiteDep, session: SessionDep) -> ReportOut:
     return report_out(owned_by_site(session, Report, site, report_id, "report"))
 
 
@@ -79,7 +80,7 @@ def _download(
 
 @router.get("/{report_id}/pdf", response_class=FileResponse, summary="The report as PDF")
 def report_pdf(
-    report_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    report_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     report = owned_by_site(session, Report, site, report_id, "report")
     return _download(session, storage, report, report.pdf_file_id, "pdf")
@@ -87,7 +88,7 @@ def report_pdf(
 
 @router.get("/{report_id}/html", response_class=FileResponse, summary="The report as HTML")
 def report_html(
-    report_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    report_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     report = owned_by_site(session, Report, site, report_id, "report")
     return _download(session, storage, report, report.html_file_id, "html")

@@ -6,6 +6,7 @@ from sqlalchemy import select
 from backend.api.deps import SessionDep, SiteDep, owned_by_site
 from backend.api.schemas_monitoring import ScheduleCreate, ScheduleOut, ScheduleUpdate
 from backend.db.models import Schedule
+from backend.ids import RowId
 from backend.services.schedules import ScheduleRejected, check, next_run, utcnow
 
 router = APIRouter(prefix="/sites/{site_id}/schedules", tags=["schedules"])
@@ -53,13 +54,13 @@ def list_schedules(site: SiteDep, session: SessionDep) -> list[Schedule]:
 
 
 @router.get("/{schedule_id}", response_model=ScheduleOut)
-def get_schedule(schedule_id: int, site: SiteDep, session: SessionDep) -> Schedule:
+def get_schedule(schedule_id: RowId, site: SiteDep, session: SessionDep) -> Schedule:
     return owned_by_site(session, Schedule, site, schedule_id, "schedule")
 
 
 @router.patch("/{schedule_id}", response_model=ScheduleOut)
 def update_schedule(
-    schedule_id: int, body: ScheduleUpdate, site: SiteDep, session: SessionDep
+    schedule_id: RowId, body: ScheduleUpdate, site: SiteDep, session: SessionDep
 ) -> Schedule:
     """A new cron or time zone moves the next run to the next time it names."""
     schedule = owned_by_site(session, Schedule, site, schedule_id, "schedule")
@@ -78,7 +79,7 @@ def update_schedule(
 
 
 @router.delete("/{schedule_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_schedule(schedule_id: int, site: SiteDep, session: SessionDep) -> Response:
+def delete_schedule(schedule_id: RowId, site: SiteDep, session: SessionDep) -> Response:
     """Delete the schedule; its reports stay."""
     session.delete(owned_by_site(session, Schedule, site, schedule_id, "schedule"))
     session.commit()

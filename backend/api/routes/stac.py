@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse
 
 from backend.api.deps import CurrentToken, SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.db.models import Comparison, JobState, Survey
+from backend.ids import RowId
 from backend.services import stac
 
 router = APIRouter(prefix="/stac", tags=["STAC"])
@@ -37,7 +38,7 @@ def site_collection(request: Request, site: SiteDep, session: SessionDep) -> JSO
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def survey_item(
-    survey_id: int, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     survey = owned_by_site(session, Survey, site, survey_id, "survey")
     body = stac.survey_item(session, storage, survey, _href(request))
@@ -50,7 +51,7 @@ def survey_item(
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def comparison_item(
-    comparison_id: int, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     comparison = owned_by_site(session, Comparison, site, comparison_id, "comparison")
     if comparison.status != JobState.succeeded:

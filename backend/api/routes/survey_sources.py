@@ -13,11 +13,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 
+from backend.api.body_limits import streamed_upload
 from backend.api.deps import CeleryDep, SessionDep, SettingsDep, SiteDep, StorageDep
 from backend.api.routes.surveys import survey_of_site
 from backend.api.schemas import JobOut, SourceSurveyCreate, SurveyFileOut, SurveyOut
 from backend.api.serializers import job_out
 from backend.db.models import Survey, SurveyFile
+from backend.ids import RowId
 from backend.services.survey_sources import (
     ROLES,
     SourceRejected,
@@ -70,9 +72,10 @@ def create_source(body: SourceSurveyCreate, site: SiteDep, session: SessionDep) 
         }
     },
 )
+@streamed_upload
 async def put_file(
     request: Request,
-    survey_id: int,
+    survey_id: RowId,
     filename: str,
     site: SiteDep,
     session: SessionDep,
@@ -107,13 +110,13 @@ async def put_file(
 
 
 @router.get("/{survey_id}/files", response_model=list[SurveyFileOut])
-def list_files(survey_id: int, site: SiteDep, session: SessionDep) -> list[SurveyFile]:
+def list_files(survey_id: RowId, site: SiteDep, session: SessionDep) -> list[SurveyFile]:
     return list(survey_of_site(session, site, survey_id).files)
 
 
 @router.delete("/{survey_id}/files/{file_id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_file(
-    survey_id: int, file_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, file_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> Response:
     survey = survey_of_site(session, site, survey_id)
     try:
@@ -127,7 +130,7 @@ def delete_file(
 
 @router.post("/{survey_id}/process", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
 def process(
-    survey_id: int,
+    survey_id: RowId,
     site: SiteDep,
     session: SessionDep,
     storage: StorageDep,

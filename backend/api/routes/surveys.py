@@ -4,10 +4,13 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from sqlalchemy import select
 
+from backend.api.body_limits import streamed_upload
 from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut, SurveyOut
 from backend.api.serializers import product_out, survey_out
 from backend.db.models import Site, Survey
+from backend.ids import RowId
+from backend.raster_limits import RasterLimits
 from backend.services.deletion import StillInUse, delete_survey
 from backend.services.surveys import create_dsm_survey
 from backend.storage import UploadTooLarge
@@ -16,7 +19,7 @@ from worker.pipeline.errors import InputError
 router = APIRouter(prefix="/sites/{site_id}/surveys", tags=["surveys"])
 
 
-def survey_of_site(session: SessionDep, site: Site, survey_id: int) -> Survey:
+def survey_of_site(session: SessionDep, site: Site, survey_id: RowId) -> Survey:
     return owned_by_site(session, Survey, site, survey_id, "survey")
 
 
@@ -42,6 +45,7 @@ def list_surveys(site: SiteDep, session: SessionDep, storage: StorageDep) -> lis
         }
     },
 )
+@streamed_upload
 async def upload_dsm_survey(
     request: Request,
     site: SiteDep,
@@ -79,6 +83,7 @@ async def upload_dsm_survey(
             captured_at=captured_at,
             original_name=filename,
             max_bytes=settings.max_upload_bytes,
+            limits=RasterLimits.from_settings(settings),
         )
     except UploadTooLarge as exc:
         raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, str(exc)) from None
@@ -88,20 +93,20 @@ async def upload_dsm_survey(
 
 @router.get("/{survey_id}", response_model=SurveyOut)
 def get_survey(
-    survey_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> SurveyOut:
     return survey_out(survey_of_site(session, site, survey_id), storage)
 
 
 @router.get("/{survey_id}/products", response_model=list[ProductOut])
-def list_survey_products(survey_id: int, site: SiteDep, session: SessionDep) -> list[ProductOut]:
+def list_survey_products(survey_id: RowId, site: SiteDep, session: SessionDep) -> list[ProductOut]:
     survey = survey_of_site(session, site, survey_id)
     return [product_out(p) for p in survey.products]
 
 
 @router.delete("/{survey_id}", status_code=status.HTTP_204_NO_CONTENT)
 def remove_survey(
-    survey_id: int, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
 ) -> Response:
     survey = survey_of_site(session, site, survey_id)
     try:

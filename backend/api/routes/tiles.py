@@ -23,6 +23,7 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
 from backend.db.models import Comparison, JobState, Product, Site, Survey
+from backend.ids import RowId
 from backend.services.tiles import (
     LAYERS,
     BadStyle,
@@ -51,14 +52,14 @@ class LayerSource:
     path: Path
 
 
-def _owner_row(session: SessionDep, site: Site, owner: str, owner_id: int):
+def _owner_row(session: SessionDep, site: Site, owner: str, owner_id: RowId):
     if owner == "surveys":
         return owned_by_site(session, Survey, site, owner_id, "survey")
     return owned_by_site(session, Comparison, site, owner_id, "comparison")
 
 
 def _product_path(
-    session: SessionDep, storage: StorageDep, owner: str, owner_id: int, kind: str
+    session: SessionDep, storage: StorageDep, owner: str, owner_id: RowId, kind: str
 ) -> Path | None:
     column = Product.survey_id if owner == "surveys" else Product.comparison_id
     product = session.query(Product).filter(column == owner_id, Product.kind == kind).one_or_none()
@@ -69,7 +70,7 @@ def _product_path(
 
 
 def _layer_source(
-    site: Site, owner: str, owner_id: int, layer: str, session: SessionDep, storage: StorageDep
+    site: Site, owner: str, owner_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
     """The path dependency: our ids (and the token, through SiteDep) to a file we own."""
     layers = LAYERS[owner]
@@ -96,13 +97,13 @@ def _layer_source(
 
 
 def survey_layer(
-    site: SiteDep, survey_id: int, layer: str, session: SessionDep, storage: StorageDep
+    site: SiteDep, survey_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
     return _layer_source(site, "surveys", survey_id, layer, session, storage)
 
 
 def comparison_layer(
-    site: SiteDep, comparison_id: int, layer: str, session: SessionDep, storage: StorageDep
+    site: SiteDep, comparison_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
     return _layer_source(site, "comparisons", comparison_id, layer, session, storage)
 
@@ -304,7 +305,7 @@ def _owner_wmts(
     request: Request,
     site: Site,
     owner: str,
-    owner_id: int,
+    owner_id: RowId,
     session: SessionDep,
     storage: StorageDep,
 ) -> Response:
@@ -318,7 +319,7 @@ def _owner_wmts(
 
 @router.get("/surveys/{survey_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
 def survey_wmts(
-    request: Request, site: SiteDep, survey_id: int, session: SessionDep, storage: StorageDep
+    request: Request, site: SiteDep, survey_id: RowId, session: SessionDep, storage: StorageDep
 ) -> Response:
     """The layers of one survey."""
     return _owner_wmts(request, site, "surveys", survey_id, session, storage)
@@ -326,7 +327,7 @@ def survey_wmts(
 
 @router.get("/comparisons/{comparison_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
 def comparison_wmts(
-    request: Request, site: SiteDep, comparison_id: int, session: SessionDep, storage: StorageDep
+    request: Request, site: SiteDep, comparison_id: RowId, session: SessionDep, storage: StorageDep
 ) -> Response:
     """The layers of one comparison."""
     return _owner_wmts(request, site, "comparisons", comparison_id, session, storage)

@@ -19,10 +19,12 @@ from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from fastapi.responses import JSONResponse
 from starlette.requests import ClientDisconnect
 
+from backend.api.body_limits import streamed_upload
 from backend.api.deps import CurrentToken, SessionDep, SettingsDep, StorageDep
 from backend.api.schemas_map import UploadOut
 from backend.db.models import Upload, UploadState
 from backend.db.tokens import as_utc
+from backend.raster_limits import RasterLimits
 from backend.services.survey_sources import uploaded_file_warnings
 from backend.services.uploads import (
     CHECKSUM_ALGORITHMS,
@@ -155,12 +157,14 @@ def offset(
         }
     },
 )
+@streamed_upload
 async def patch(
     upload_id: str,
     request: Request,
     _token: CurrentToken,
     session: SessionDep,
     storage: StorageDep,
+    settings: SettingsDep,
     upload_offset: Annotated[int | None, Header()] = None,
     upload_checksum: Annotated[str | None, Header()] = None,
     tus_resumable: Annotated[str | None, Header()] = None,
@@ -177,7 +181,7 @@ async def patch(
             session, storage, upload, upload_offset, request.stream(), checksum
         )
         if new_offset == upload.length:
-            await complete(session, storage, upload)
+            await complete(session, storage, upload, RasterLimits.from_settings(settings))
     except UploadError as exc:
         return _error(exc)
     except ClientDisconnect:
