@@ -3,8 +3,10 @@
 from functools import lru_cache
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from backend.outbound import parse_networks
 
 
 class Settings(BaseSettings):
@@ -112,6 +114,12 @@ class Settings(BaseSettings):
         description="Backoff of deliveries: base, 2 × base, 4 × base, ... (at most 1 hour).",
     )
     webhook_timeout_s: float = 10.0
+    webhook_allowed_networks: list[str] = Field(
+        default_factory=list,
+        description="Networks (CIDR) that webhooks may call although they are not public, "
+        'for receivers on premises; as JSON, e.g. ["10.20.0.0/16"]. Loopback, link-local, '
+        "private, multicast and unspecified addresses are refused otherwise.",
+    )
     # --- the map (frontend/) ---
     session_hours: float = Field(
         default=12.0, description="How long a sign-in to the map lasts before it must be redone."
@@ -149,6 +157,12 @@ class Settings(BaseSettings):
         description="The built map (index.html and assets). Default: frontend/dist of the "
         "source tree.",
     )
+
+    @field_validator("webhook_allowed_networks")
+    @classmethod
+    def _networks(cls, values: list[str]) -> list[str]:
+        parse_networks(values)  # a mistyped network fails at start, naming it
+        return values
 
     @property
     def storage_dir(self) -> Path:

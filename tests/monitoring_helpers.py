@@ -3,6 +3,7 @@ seeded rows, and a finished comparison."""
 
 from __future__ import annotations
 
+import json
 import socket
 import threading
 import time
@@ -41,7 +42,8 @@ def app_for(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> Iterator[Fas
         monkeypatch.setenv("SLIDEWATCH_DATABASE_URL", settings.database_url)
     for key, value in settings.model_dump(exclude_unset=True).items():
         if key not in ("data_dir", "database_url") and value is not None:
-            monkeypatch.setenv(f"SLIDEWATCH_{key.upper()}", str(value))
+            text = json.dumps(value) if isinstance(value, list | dict) else str(value)
+            monkeypatch.setenv(f"SLIDEWATCH_{key.upper()}", text)
     for cached in (get_settings, db_session.get_engine, db_session.get_sessionmaker):
         cached.cache_clear()
     settings.data_dir.mkdir(parents=True, exist_ok=True)

@@ -2,12 +2,13 @@
 
 from datetime import datetime
 from typing import Any
-from urllib.parse import urlparse
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from backend.db.models import DeliveryStatus, JobState
+from backend.email_address import email_problem
 from backend.ids import RowId
+from backend.outbound import check_url_form
 from backend.services.alerts import EVENTS
 
 
@@ -39,9 +40,9 @@ class AlertSettingsIn(BaseModel):
     @classmethod
     def _addresses(cls, values: list[str]) -> list[str]:
         for value in values:
-            local, _, domain = value.partition("@")
-            if not local or "." not in domain or any(c in value for c in " ,;<>"):
-                raise ValueError(f"{value!r} is not an e-mail address")
+            problem = email_problem(value)
+            if problem:
+                raise ValueError(problem)
         return values
 
 
@@ -61,9 +62,7 @@ class WebhookCreate(BaseModel):
     @field_validator("url")
     @classmethod
     def _url(cls, value: str) -> str:
-        parsed = urlparse(value)
-        if parsed.scheme not in ("http", "https") or not parsed.netloc:
-            raise ValueError(f"{value!r} is not an http(s) URL")
+        check_url_form(value)  # its addresses are checked by the route, with the settings
         return value
 
     _events = field_validator("events")(check_events)

@@ -28,6 +28,7 @@ import ssl
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
+from email.headerregistry import Address
 from email.message import EmailMessage
 from typing import Any
 
@@ -50,6 +51,7 @@ from backend.db.models import (
     StoredFile,
     Webhook,
 )
+from backend.outbound import UrlRefused, parse_networks, resolve_target
 from backend.signing import SIGNATURE_HEADER, TIMESTAMP_HEADER, sign
 from backend.storage import LocalStorage
 from backend.urls import api_url
@@ -497,13 +499,22 @@ def _send(settings: Settings, request: _Request) -> tuple[int | None, str | None
             SIGNATURE_HEADER: sign(request.secret or "", timestamp, request.body),
         }
         try:
-            response = httpx.post(
-                request.url or "",
-                content=request.body,
-                headers=headers,
-                timeout=settings.webhook_timeout_s,
-                follow_redirects=False,
+            # Checked again now (its name may resolve elsewhere than when it was saved),
+            # and called at the very address checked.
+            target = resolve_target(
+                request.url or "", parse_networks(settings.webhook_allowed_networks)
             )
+        except UrlRefused as exc:
+            return None, f"refused: {exc}"
+        try:
+            # A redirect is an answer, not a new target: it is never followed.
+            with httpx.Client(timeout=settings.webhook_timeout_s, follow_redirects=False) as http:
+                response = http.post(
+                    target.url,
+                    content=request.body,
+                    headers={**headers, "Host": target.host_header},
+                    extensions={"sni_hostname": target.server_name},
+                )
         except httpx.HTTPError as exc:
             return None, f"{type(exc).__name__}: {exc}"
         if 200 <= response.status_code < 300:
@@ -511,7 +522,9 @@ def _send(settings: Settings, request: _Request) -> tuple[int | None, str | None
         return response.status_code, f"HTTP {response.status_code}: {response.text[:200]}"
     try:
         send_email(settings, request.recipients, request.subject, request.text, request.attachment)
-    except (OSError, smtplib.SMTPException) as exc:
+    except (OSError, smtplib.SMTPException, ValueError) as exc:
+        # ValueError: the library refused to build a header (e.g. a recipient saved before
+        # addresses were checked): a failed attempt like any other, never a stuck delivery.
         code = getattr(exc, "smtp_code", None)
         return code, f"{type(exc).__name__}: {exc}"
     return None, None
@@ -554,9 +567,10 @@ def send_email(
     attachment: tuple[str, bytes] | None = None,
 ) -> None:
     message = EmailMessage()
+    # Headers built by the library from parsed addresses: it refuses what is no address.
     message["From"] = settings.smtp_from
-    message["To"] = ", ".join(recipients)
-    message["Subject"] = subject
+    message["To"] = [Address(addr_spec=r) for r in recipients]
+    message["Subject"] = " ".join(subject.split())  # a site's name may hold line breaks
     message.set_content(text)
     if attachment is not None:
         name, data = attachment

@@ -29,6 +29,9 @@ def alert_settings(tmp_path: Path, mailbox: MailReceiver) -> Settings:
         delivery_retry_base_s=0.3,
         webhook_timeout_s=5.0,
         public_url="https://slidewatch.example",
+        # The local webhook receivers of these tests listen on loopback, which webhooks
+        # may call only when an administrator allows it.
+        webhook_allowed_networks=["127.0.0.1/32"],
     )
 
 

@@ -22,7 +22,11 @@ pytestmark = pytest.mark.integration
 def test_worker_retries_a_failing_webhook_with_backoff(
     tmp_path: Path, alert_pair: DsmPairPaths, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    settings = Settings(data_dir=tmp_path / "data", delivery_retry_base_s=0.5)
+    settings = Settings(
+        data_dir=tmp_path / "data",
+        delivery_retry_base_s=0.5,
+        webhook_allowed_networks=["127.0.0.1/32"],  # the local receiver
+    )
     with (
         WebhookReceiver(statuses=[500, 502]) as receiver,
         app_for(settings, monkeypatch) as app,

@@ -22,7 +22,12 @@ def mailbox() -> Iterator[MailReceiver]:
 def report_app(
     tmp_path: Path, mailbox: MailReceiver, monkeypatch: pytest.MonkeyPatch
 ) -> Iterator[FastAPI]:
-    settings = Settings(data_dir=tmp_path / "data", smtp_host="127.0.0.1", smtp_port=mailbox.port)
+    settings = Settings(
+        data_dir=tmp_path / "data",
+        smtp_host="127.0.0.1",
+        smtp_port=mailbox.port,
+        webhook_allowed_networks=["127.0.0.1/32"],  # the local webhook receiver
+    )
     with app_for(settings, monkeypatch) as app:
         yield app
 

@@ -3,10 +3,10 @@
 import secrets
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from sqlalchemy import select
 
-from backend.api.deps import SessionDep, SiteDep, owned_by_site
+from backend.api.deps import SessionDep, SettingsDep, SiteDep, owned_by_site
 from backend.api.schemas_monitoring import (
     AlertSettingsIn,
     AlertSettingsOut,
@@ -18,6 +18,7 @@ from backend.api.schemas_monitoring import (
 )
 from backend.db.models import AlertSettings, Delivery, Webhook, utcnow
 from backend.ids import RowId
+from backend.outbound import UrlRefused, parse_networks, resolve_target
 from backend.services.alerts import alert_settings
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["alerts"])
@@ -48,7 +49,15 @@ def put_alert_settings(body: AlertSettingsIn, site: SiteDep, session: SessionDep
     status_code=status.HTTP_201_CREATED,
     summary="Add a webhook; its signing secret is in this response only",
 )
-def create_webhook(body: WebhookCreate, site: SiteDep, session: SessionDep) -> WebhookCreated:
+def create_webhook(
+    body: WebhookCreate, site: SiteDep, session: SessionDep, settings: SettingsDep
+) -> WebhookCreated:
+    """The URL must resolve to public addresses only (or to a network of
+    SLIDEWATCH_WEBHOOK_ALLOWED_NETWORKS); it is checked again at every call."""
+    try:
+        resolve_target(body.url, parse_networks(settings.webhook_allowed_networks))
+    except UrlRefused as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     webhook = Webhook(
         site_id=site.id, secret="whsec_" + secrets.token_urlsafe(32), **body.model_dump()
     )
