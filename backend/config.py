@@ -124,6 +124,21 @@ class Settings(BaseSettings):
     session_hours: float = Field(
         default=12.0, description="How long a sign-in to the map lasts before it must be redone."
     )
+    sign_in_max_failures: int = Field(
+        default=5,
+        gt=0,
+        description="Failed sign-ins to one account within SLIDEWATCH_SIGN_IN_LOCKOUT_S that "
+        "lock it out until they fall out of that window.",
+    )
+    sign_in_max_failures_per_address: int = Field(
+        default=20,
+        gt=0,
+        description="Failed sign-ins from one client address (to any accounts) within the "
+        "window that lock that address out.",
+    )
+    sign_in_lockout_s: float = Field(
+        default=900.0, gt=0, description="The window of failed sign-ins, in seconds."
+    )
     basemap_url: str | None = Field(
         default=None,
         description="XYZ URL template of a basemap under the map's layers, e.g. "

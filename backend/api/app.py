@@ -27,6 +27,7 @@ from backend.api.routes import (
     tiles,
     uploads,
 )
+from backend.api.security_headers import SecurityHeadersMiddleware
 from backend.config import Settings, get_settings
 from backend.db.session import make_engine
 from backend.storage import LocalStorage
@@ -56,6 +57,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.storage = LocalStorage(settings.storage_dir)
     app.state.celery = create_celery(settings)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_request_bytes)
+    # Added last, so outermost: every answer gets the headers, errors of the others too.
+    app.add_middleware(SecurityHeadersMiddleware, settings=settings)
 
     app.include_router(health.router)
     api = APIRouter(prefix=API_PREFIX)

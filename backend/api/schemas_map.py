@@ -24,6 +24,11 @@ class SignInOut(BaseModel):
     token: str = Field(description="Send as `Authorization: Bearer <token>` until it expires.")
     expires_at: datetime
     user: UserOut
+    notice: str | None = Field(
+        default=None,
+        description="Failed sign-ins to the account since its last sign-in, if any: how "
+        "many, since when, the last one's address.",
+    )
 
 
 class WhoAmI(BaseModel):

@@ -458,6 +458,17 @@ class User(Base):
     disabled_at: Mapped[datetime | None]
 
 
+class SignInFailure(Base):
+    """A sign-in refused for a wrong user name or password: what throttles guessing."""
+
+    __tablename__ = "sign_in_failures"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    username: Mapped[str] = mapped_column(String(100), index=True)  # as typed, known or not
+    address: Mapped[str] = mapped_column(String(64), index=True)  # the client's IP address
+    at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+
+
 class UploadState(enum.StrEnum):
     receiving = "receiving"
     complete = "complete"

@@ -42,7 +42,7 @@ def create_user(session: Session, username: str, password: str, display_name: st
             "the user name must be 1 to 100 letters, digits or . _ @ -, starting with a "
             "letter or digit"
         )
-    problem = password_problem(password)
+    problem = password_problem(password, username)
     if problem:
         raise UserRejected(problem)
     if session.scalar(select(User.id).where(User.username == username)) is not None:
@@ -54,7 +54,7 @@ def create_user(session: Session, username: str, password: str, display_name: st
 
 
 def set_password(session: Session, user: User, password: str) -> None:
-    problem = password_problem(password)
+    problem = password_problem(password, user.username)
     if problem:
         raise UserRejected(problem)
     user.password_hash = hash_password(password)
