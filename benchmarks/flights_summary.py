@@ -124,6 +124,22 @@ def stats(values: list[float | None], higher_is_better: bool = False) -> dict[st
     }
 
 
+# An RTK flight whose DSM is further from the truth than this (DSM pixels NMAD, as
+# georeferenced: the p90 target) while its georeference claims the log's accuracy is a
+# miss its report does not tell.
+SILENT_MISS_PX = 3.0
+
+
+def silent_miss(record: dict[str, Any]) -> bool:
+    """An RTK flight off by more than SILENT_MISS_PX whose segments all passed the check
+    against the log's stated accuracy: nothing in its report says it is off."""
+    slam = record.get("slam", {})
+    nmad = slam.get("dsm_nmad_as_georeferenced_px")
+    within = slam.get("georeference", {}).get("all_within_stated_accuracy")
+    rtk = record["conditions"].get("gnss") == "rtk"
+    return bool(rtk and nmad is not None and nmad > SILENT_MISS_PX and within)
+
+
 def summarize_group(records: list[dict[str, Any]]) -> dict[str, Any]:
     """One group's success and the statistics of every figure over its successes."""
     ok = [r for r in records if r.get("success")]
@@ -135,6 +151,12 @@ def summarize_group(records: list[dict[str, Any]]) -> dict[str, Any]:
             {"seed": r["conditions"]["seed"], **r["slam"].get("failure", {})}
             for r in records
             if not r.get("success")
+        ],
+        "silent_misses": [r["conditions"]["seed"] for r in records if silent_miss(r)],
+        "quality_failed": [
+            r["conditions"]["seed"]
+            for r in records
+            if r.get("slam", {}).get("quality_passed") is False
         ],
         "sfm": _sfm_subset(records),
         "figures": {f.name: stats([f.get(r) for r in ok], f.higher_is_better) for f in FIGURES},
@@ -202,6 +224,13 @@ def table(summary: dict[str, Any]) -> str:
         )
         for failure in group["failures"]:
             lines.append(f"  failed seed {failure['seed']}: {failure.get('message', '')[:160]}")
+        if group.get("quality_failed"):
+            lines.append(f"  quality verdict failed: seeds {_seeds(group['quality_failed'])}")
+        if group.get("silent_misses"):
+            lines.append(
+                f"  off by more than {SILENT_MISS_PX:g} px within the stated accuracy "
+                f"(not told): seeds {_seeds(group['silent_misses'])}"
+            )
         sfm = group["sfm"]
         if sfm["runs"]:
             lines.append(f"  sfm subset: {sfm['succeeded']} of {sfm['runs']} succeeded")
@@ -219,3 +248,7 @@ def table(summary: dict[str, Any]) -> str:
 
 def _cell(v: float | None) -> str:
     return f"{'-':>9s}" if v is None else f"{v:9.3f}"
+
+
+def _seeds(seeds: list[int]) -> str:
+    return ", ".join(str(seed) for seed in seeds)
