@@ -65,14 +65,57 @@ def migrate() -> None:
 
 @main.command("create-token")
 @click.option("--name", default="api", show_default=True, help="What the token is for.")
-def create_token_command(name: str) -> None:
-    """Create an API token and print it (it is shown only this once)."""
+@click.option(
+    "--days", type=float, default=None, help="How long it is valid. Default: SLIDEWATCH_TOKEN_DAYS."
+)
+def create_token_command(name: str, days: float | None) -> None:
+    """Create an administrator's API token and print it (it is shown only this once)."""
+    from datetime import UTC, datetime, timedelta
+
     from backend.db.session import session_scope
     from backend.db.tokens import create_token
 
+    settings = get_settings()
+    days = days or settings.token_days
+    if not 0 < days <= settings.token_max_days:
+        raise click.ClickException(
+            f"--days must be more than 0 and at most {settings.token_max_days:g}"
+        )
     with session_scope() as session:
-        token = create_token(session, name)
+        token = create_token(session, name, expires_at=datetime.now(UTC) + timedelta(days=days))
     click.echo(token)
+
+
+@main.command("disable-user")
+@click.argument("username")
+def disable_user_command(username: str) -> None:
+    """Disable a user of the map: no more sign-in; their sessions and tokens end."""
+    _set_user_enabled(username, enabled=False)
+
+
+@main.command("enable-user")
+@click.argument("username")
+def enable_user_command(username: str) -> None:
+    """Let a disabled user sign in again."""
+    _set_user_enabled(username, enabled=True)
+
+
+def _set_user_enabled(username: str, enabled: bool) -> None:
+    from sqlalchemy import select
+
+    from backend.db.models import User
+    from backend.db.session import session_scope
+    from backend.services.users import disable_user, enable_user
+
+    with session_scope() as session:
+        user = session.scalar(select(User).where(User.username == username))
+        if user is None:
+            raise click.ClickException(f"no user named {username!r}")
+        if enabled:
+            enable_user(user)
+        else:
+            disable_user(session, user)
+    click.echo(f"user {username} {'enabled' if enabled else 'disabled'}")
 
 
 @main.command("create-user")
@@ -153,13 +196,23 @@ def beat() -> None:
 
 def ensure_admin_token(settings: Settings) -> str | None:
     """On first start create a token and keep it in the data directory for the operator."""
+    from datetime import UTC, datetime, timedelta
+
     from backend.db.session import session_scope
-    from backend.db.tokens import create_token, has_tokens
+    from backend.db.tokens import authenticate, create_token, has_tokens
 
     token_file = settings.data_dir / ADMIN_TOKEN_FILE
     with session_scope() as session:
-        if not has_tokens(session):
-            token = create_token(session, "admin (created on first start)")
+        kept = token_file.read_text().strip() if token_file.exists() else None
+        # Tokens expire: the one kept for the operator is made again once it has run out
+        # (or was revoked), so that `slidewatch run` always prints one that works.
+        renew = kept is not None and authenticate(session, kept) is None
+        if renew or not has_tokens(session):
+            token = create_token(
+                session,
+                "admin (created on start)",
+                expires_at=datetime.now(UTC) + timedelta(days=settings.token_days),
+            )
             token_file.write_text(token + "\n")
             token_file.chmod(0o600)
     return token_file.read_text().strip() if token_file.exists() else None

@@ -124,6 +124,14 @@ class Settings(BaseSettings):
     session_hours: float = Field(
         default=12.0, description="How long a sign-in to the map lasts before it must be redone."
     )
+    token_days: float = Field(
+        default=90.0,
+        gt=0,
+        description="How long a new API token is valid unless its maker asks for less.",
+    )
+    token_max_days: float = Field(
+        default=365.0, gt=0, description="The longest validity a new API token may be given."
+    )
     sign_in_max_failures: int = Field(
         default=5,
         gt=0,

@@ -4,6 +4,7 @@ from fastapi import APIRouter, FastAPI
 from sqlalchemy.orm import sessionmaker
 
 from backend.api.body_limits import BodyLimitMiddleware
+from backend.api.log_redaction import redact_access_logs
 from backend.api.routes import (
     alerts,
     auth,
@@ -25,7 +26,9 @@ from backend.api.routes import (
     survey_sources,
     surveys,
     tiles,
+    tokens,
     uploads,
+    users,
 )
 from backend.api.security_headers import SecurityHeadersMiddleware
 from backend.config import Settings, get_settings
@@ -40,14 +43,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     wire(settings)
+    redact_access_logs()
     app = FastAPI(
         title="slidewatch",
         version="0.1.0",
         summary="Landslide detection from multi-temporal drone surveys.",
         description="Every endpoint but `/health` needs an API token: "
         "`Authorization: Bearer <token>` (create one with `slidewatch create-token`), or, "
-        "for GIS clients that cannot send headers, `?api_key=<token>` (query strings end up "
-        "in access logs: prefer the header). GIS users: OGC API – Features at `/ogc`, "
+        "for GIS clients that cannot send headers, `?api_key=<token>` (slidewatch keeps it out "
+        "of its access log and of the links it returns; proxies may log it: prefer the "
+        "header). GIS users: OGC API – Features at `/ogc`, "
         f"STAC at `/stac/catalog.json`, map tiles and WMTS under `{API_PREFIX}/sites/{{id}}`.",
     )
     engine = make_engine(settings.resolved_database_url)
@@ -74,6 +79,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         schedules,
         reports,
         auth,
+        tokens,
+        users,
         uploads,
         job_events,
         detection_feedback,

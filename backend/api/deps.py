@@ -21,6 +21,12 @@ def get_settings_dep(request: Request) -> Settings:
     return request.app.state.settings
 
 
+def public_base(request: Request) -> str:
+    """Where users reach the API (SLIDEWATCH_PUBLIC_URL), for the absolute links of an
+    answer: never the request's Host header, which whoever sends the request chooses."""
+    return request.app.state.settings.resolved_public_url
+
+
 def get_session(request: Request) -> Iterator[Session]:
     session: Session = request.app.state.sessionmaker()
     try:
@@ -84,6 +90,19 @@ def require_token(
 
 
 CurrentToken = Annotated[ApiToken, Depends(require_token)]
+
+
+def require_admin(token: CurrentToken) -> ApiToken:
+    """An API token of the platform (one that belongs to no user): it administers."""
+    if token.user_id is not None:
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            "this needs an administrator's API token (slidewatch create-token)",
+        )
+    return token
+
+
+AdminToken = Annotated[ApiToken, Depends(require_admin)]
 
 
 def get_site(site_id: RowId, session: SessionDep, _token: CurrentToken) -> Site:

@@ -94,6 +94,8 @@ class ApiToken(Base):
         ForeignKey("users.id", ondelete="CASCADE"), index=True
     )
     expires_at: Mapped[datetime | None]
+    # "session": made by signing in to the map; "api": made to be given to a program.
+    kind: Mapped[str] = mapped_column(String(16), default="api", server_default="api")
 
     user: Mapped[User | None] = relationship()
 

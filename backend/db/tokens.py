@@ -1,7 +1,7 @@
 """API tokens: random secrets shown once, stored only as SHA-256 hashes.
 
 The same tokens, with an expiry and a user, are the sessions of people signed in to the map
-(backend/services/users.py).
+(backend/services/users.py); a token of a user who is disabled opens nothing.
 """
 
 import hashlib
@@ -21,10 +21,26 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def create_token(session: Session, name: str) -> str:
+def create_token(
+    session: Session,
+    name: str,
+    *,
+    expires_at: datetime | None = None,
+    user_id: int | None = None,
+    kind: str = "api",
+) -> str:
     """Store a new token and return its secret (the only time it is visible)."""
     token = TOKEN_PREFIX + secrets.token_urlsafe(32)
-    session.add(ApiToken(name=name, token_hash=hash_token(token), prefix=token[:10]))
+    session.add(
+        ApiToken(
+            name=name,
+            token_hash=hash_token(token),
+            prefix=token[:10],
+            expires_at=expires_at,
+            user_id=user_id,
+            kind=kind,
+        )
+    )
     session.flush()
     return token
 
@@ -39,7 +55,9 @@ def authenticate(session: Session, token: str) -> ApiToken | None:
         return None
     now = datetime.now(UTC)
     if found.expires_at is not None and as_utc(found.expires_at) <= now:
-        return None  # a map session that has run out: sign in again
+        return None  # run out: sign in again, or make a new token
+    if found.user is not None and found.user.disabled_at is not None:
+        return None
     found.last_used_at = now
     return found
 

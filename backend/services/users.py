@@ -63,6 +63,28 @@ def set_password(session: Session, user: User, password: str) -> None:
         token.revoked_at = token.revoked_at or datetime.now(UTC)
 
 
+def change_password(session: Session, user: User, current: str, new: str) -> None:
+    """Set a new password if `current` is the user's; every session and token of the
+    user ends (SignInFailed for a wrong current password, UserRejected for a weak one)."""
+    if not verify_password(current, user.password_hash):
+        raise SignInFailed
+    if current == new:
+        raise UserRejected("the new password must differ from the current one")
+    set_password(session, user, new)
+
+
+def disable_user(session: Session, user: User) -> None:
+    """The user can no longer sign in, and every session and token of theirs ends."""
+    now = datetime.now(UTC)
+    user.disabled_at = user.disabled_at or now
+    for token in session.scalars(select(ApiToken).where(ApiToken.user_id == user.id)):
+        token.revoked_at = token.revoked_at or now
+
+
+def enable_user(user: User) -> None:
+    user.disabled_at = None
+
+
 def sign_in(session: Session, username: str, password: str, hours: float) -> SignedIn:
     """A new session token for the user; SignInFailed for a wrong name or password."""
     user = session.scalar(select(User).where(User.username == username))
@@ -81,6 +103,7 @@ def sign_in(session: Session, username: str, password: str, hours: float) -> Sig
             prefix=secret[:10],
             user_id=user.id,
             expires_at=expires_at,
+            kind="session",
         )
     )
     user.last_login_at = now

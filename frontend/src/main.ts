@@ -2,6 +2,7 @@
 // hash (#/sites/3) so that the backend serves one index.html for all of them.
 
 import { mapConfig, session, whenSignedOut } from "./api";
+import { renderAccount } from "./pages/account";
 import { renderSignIn } from "./pages/signin";
 import { renderSite } from "./pages/site";
 import { renderSites } from "./pages/sites";
@@ -24,6 +25,7 @@ async function route(): Promise<void> {
   const config = await mapConfig();
   const site = /^\/sites\/(\d+)$/.exec(hash);
   if (site) leave = await renderSite(app, Number(site[1]), config);
+  else if (hash === "/account") await renderAccount(app);
   else renderSites(app);
 }
 

@@ -205,3 +205,18 @@ export interface ComparisonCreatedOut {
   comparison: Comparison;
   job: Job;
 }
+
+/** An API token as GET /auth/tokens lists it (its secret is never listed). */
+export type ApiTokenInfo = {
+  id: number;
+  name: string;
+  prefix: string;
+  kind: "session" | "api";
+  created_at: string;
+  last_used_at: string | null;
+  expires_at: string | null;
+  revoked_at: string | null;
+  current: boolean;
+};
+
+export type NewApiToken = ApiTokenInfo & { token: string };

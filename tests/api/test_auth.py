@@ -62,6 +62,13 @@ PROTECTED = [
     ("GET", "/api/v1/sites/1/reports/1/html"),
     ("POST", "/api/v1/auth/sign-out"),
     ("GET", "/api/v1/auth/me"),
+    ("POST", "/api/v1/auth/password"),
+    ("GET", "/api/v1/auth/tokens"),
+    ("POST", "/api/v1/auth/tokens"),
+    ("DELETE", "/api/v1/auth/tokens/1"),
+    ("GET", "/api/v1/users"),
+    ("POST", "/api/v1/users/1/disable"),
+    ("POST", "/api/v1/users/1/enable"),
     ("POST", "/api/v1/uploads"),
     ("HEAD", "/api/v1/uploads/1"),
     ("PATCH", "/api/v1/uploads/1"),
@@ -108,6 +115,8 @@ def test_every_api_route_is_listed_here(app: FastAPI) -> None:
                 "file_id",
                 "upload_id",
                 "detection_id",
+                "token_id",
+                "user_id",
             ):
                 path = path.replace("{" + name + "}", "{id}")
             routes |= {(method.upper(), path) for method in operations}

@@ -54,17 +54,19 @@ def test_wrong_name_or_password_is_refused_alike(
     assert response.json()["detail"] == "wrong user name or password"
 
 
-def test_sign_out_ends_the_session_but_not_an_api_token(
+def test_sign_out_ends_the_session_and_says_an_api_token_is_revoked_instead(
     client: TestClient, user: dict, auth: dict
 ) -> None:
     token = client.post("/api/v1/auth/sign-in", json=user).json()["token"]
     headers = {"Authorization": f"Bearer {token}"}
     assert client.post("/api/v1/auth/sign-out", headers=headers).status_code == 204
     assert client.get("/api/v1/sites", headers=headers).status_code == 401
-    # The platform's API tokens still sign in to the map, and signing out leaves them alone.
+    # The platform's API tokens still sign in to the map; signing out with one does not
+    # pretend to end it: it says how to revoke it.
     assert client.get("/api/v1/auth/me", headers=auth).json()["kind"] == "token"
-    assert client.post("/api/v1/auth/sign-out", headers=auth).status_code == 204
-    assert client.get("/api/v1/sites", headers=auth).status_code == 200
+    refused = client.post("/api/v1/auth/sign-out", headers=auth)
+    assert refused.status_code == 409
+    assert "DELETE /api/v1/auth/tokens/" in refused.json()["detail"]
 
 
 def test_an_expired_session_is_refused(client: TestClient, app: FastAPI, user: dict) -> None:

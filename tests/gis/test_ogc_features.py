@@ -136,13 +136,17 @@ def test_bad_parameters_get_a_400_that_says_why(
     assert message in response.json()["detail"]
 
 
-def test_token_in_header_or_query_and_carried_into_links(client: TestClient, token: str) -> None:
+def test_token_in_header_or_query_and_never_in_links(
+    client: TestClient, token: str, gis_app: FastAPI
+) -> None:
     assert client.get("/ogc/collections").status_code == 401
     assert client.get("/ogc", params={"api_key": "sw_wrong"}).status_code == 401
-    landing = client.get("/ogc", params={"api_key": token})
+    landing = client.get("/ogc", params={"api_key": token}, headers={"Host": "evil.example"})
     assert landing.status_code == 200
+    public = gis_app.state.settings.resolved_public_url
     for link in landing.json()["links"]:
-        assert f"api_key={token}" in link["href"]
+        # At the configured public URL, not the Host the client sent; no token in it.
+        assert link["href"].startswith(public + "/") and token not in link["href"]
 
 
 def _ogrinfo(url: str, *args: str, layer: str | None = None, env: dict | None = None) -> str:
@@ -161,9 +165,12 @@ def _ogrinfo(url: str, *args: str, layer: str | None = None, env: dict | None = 
 def test_gdal_oapif_lists_collections_and_pages_with_filters(
     gis_app: FastAPI, seeded: dict, token: str
 ) -> None:
+    # Links carry no token: GDAL sends the header with every request (QGIS: an "API
+    # header" authentication configuration).
+    header = {"GDAL_HTTP_HEADERS": f"Authorization: Bearer {token}"}
     with LiveServer(gis_app) as server:
-        landing = f"{server.url}/ogc?api_key={token}"
-        listing = _ogrinfo(landing)
+        landing = f"{server.url}/ogc"
+        listing = _ogrinfo(landing, env=header)
         assert re.findall(r"^\d+: (\w+)", listing, re.MULTILINE) == [
             "sites",
             "surveys",
@@ -183,16 +190,11 @@ def test_gdal_oapif_lists_collections_and_pages_with_filters(
             "-where",
             "datetime <= '2026-07-15T00:00:00Z'",
             layer="detections",
+            env=header,
         )
         ids = re.findall(r"OGRFeature\(detections\):(\d+)", features)
         assert len(ids) == len(set(ids)) == 25
         assert f"comparison_id (Integer) = {seeded['july']}" in features
         assert f"comparison_id (Integer) = {seeded['august']}" not in features
-        # The header works too, for clients that send one (QGIS: an "API header" auth config).
-        header = _ogrinfo(
-            f"{server.url}/ogc",
-            "-so",
-            layer="detections",
-            env={"GDAL_HTTP_HEADERS": f"Authorization: Bearer {token}"},
-        )
-        assert "Feature Count: 30" in header
+        summary = _ogrinfo(f"{server.url}/ogc", "-so", layer="detections", env=header)
+        assert "Feature Count: 30" in summary

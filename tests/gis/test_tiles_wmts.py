@@ -98,7 +98,8 @@ def test_products_are_cogs_with_crs_and_nodata(client: TestClient, auth: dict, i
 def test_tiles_render_each_layer_with_its_style(client: TestClient, auth: dict, ids: dict) -> None:
     base = f"/api/v1/sites/{ids['site']}/comparisons/{ids['comparison']}/tiles"
     tilejson = client.get(f"{base}/dh/tilejson.json", headers=auth).json()
-    assert tilejson["tiles"] == [f"http://testserver{base}/dh/{{z}}/{{x}}/{{y}}.png"]
+    # At the configured public URL (not the request's Host), with no token in it.
+    assert tilejson["tiles"] == [f"http://127.0.0.1:8000{base}/dh/{{z}}/{{x}}/{{y}}.png"]
     tile = _centre_tile(tilejson)
     dh = _png(client.get(f"{base}/dh/{tile.z}/{tile.x}/{tile.y}.png", headers=auth).content)
     # Diverging colormap: the landslide's loss is blue, its deposit red, stable ground white.
@@ -166,8 +167,10 @@ def test_wmts_capabilities_parse_and_their_tiles_render(
     compared_app: FastAPI, token: str, ids: dict
 ) -> None:
     with LiveServer(compared_app) as server:
-        url = f"{server.url}/api/v1/sites/{ids['site']}/wmts/WMTSCapabilities.xml?api_key={token}"
-        wmts = WebMapTileService(url)
+        url = f"{server.url}/api/v1/sites/{ids['site']}/wmts/WMTSCapabilities.xml"
+        # The tile templates carry no token: the client sends its header with each tile.
+        wmts = WebMapTileService(url, headers={"Authorization": f"Bearer {token}"})
+        assert token not in WebMapTileService(f"{url}?api_key={token}").getServiceXML().decode()
         names = set(wmts.contents)
         comparison, pre, post = ids["comparison"], ids["pre"], ids["post"]
         assert {

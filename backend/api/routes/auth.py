@@ -4,8 +4,16 @@ from fastapi import APIRouter, HTTPException, Request, Response, status
 
 from backend.api.deps import CurrentToken, SessionDep, SettingsDep
 from backend.api.schemas_map import SignInOut, SignInRequest, UserOut, WhoAmI
+from backend.api.schemas_tokens import PasswordChange
 from backend.services.sign_in_throttle import clear_account, lockout, record_failure, utcnow
-from backend.services.users import SignInFailed, sign_in, sign_out
+from backend.services.users import (
+    SignInFailed,
+    UserRejected,
+    change_password,
+    sign_in,
+    sign_out,
+)
+from backend.urls import api_url
 
 router = APIRouter(prefix="/auth", tags=["sign-in"])
 
@@ -23,8 +31,7 @@ router = APIRouter(prefix="/auth", tags=["sign-in"])
 def sign_in_route(
     body: SignInRequest, request: Request, session: SessionDep, settings: SettingsDep
 ) -> SignInOut:
-    address = request.client.host if request.client else "unknown"
-    now = utcnow()
+    address, now = _address(request), utcnow()
     locked = lockout(session, settings, body.username, address, now)
     if locked is not None:
         session.commit()
@@ -49,11 +56,65 @@ def sign_in_route(
     )
 
 
-@router.post("/sign-out", status_code=status.HTTP_204_NO_CONTENT)
+@router.post(
+    "/sign-out",
+    status_code=status.HTTP_204_NO_CONTENT,
+    responses={409: {"description": "An API token, not a sign-in: revoke it instead."}},
+)
 def sign_out_route(token: CurrentToken, session: SessionDep) -> Response:
-    """End this session (a user's token stops working; an API token is left alone)."""
+    """End this sign-in: its token stops working at once. An API token is not a sign-in:
+    it is revoked with DELETE /auth/tokens/{id}, and answered 409 here rather than left
+    valid behind a 204."""
+    if token.kind != "session":
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            f"this is an API token, not a sign-in: revoke it with DELETE "
+            f"{api_url('auth', 'tokens', token.id)}",
+        )
     sign_out(session, token)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.post(
+    "/password",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Change your password: every session and token of yours ends (sign in again)",
+    responses={429: {"description": "Locked out: too many failed sign-ins."}},
+)
+def change_password_route(
+    body: PasswordChange,
+    request: Request,
+    token: CurrentToken,
+    session: SessionDep,
+    settings: SettingsDep,
+) -> Response:
+    if token.user is None:
+        raise HTTPException(status.HTTP_409_CONFLICT, "an API token has no password to change")
+    username, address, now = token.user.username, _address(request), utcnow()
+    # A wrong current password counts as a failed sign-in: a stolen session must not
+    # become a way to guess the password.
+    locked = lockout(session, settings, username, address, now)
+    if locked is not None:
+        session.commit()
+        raise HTTPException(
+            status.HTTP_429_TOO_MANY_REQUESTS,
+            locked.message(username),
+            headers={"Retry-After": str(locked.retry_after_s)},
+        )
+    try:
+        change_password(session, token.user, body.current_password, body.new_password)
+    except SignInFailed:
+        record_failure(session, username, address, now)
+        session.commit()
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "the current password is wrong") from None
+    except UserRejected as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    session.commit()
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+def _address(request: Request) -> str:
+    return request.client.host if request.client else "unknown"
 
 
 @router.get("/me", response_model=WhoAmI)

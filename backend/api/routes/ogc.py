@@ -3,9 +3,9 @@
 Collections: `sites`, `surveys` (footprints) and `detections` (landslides of every
 comparison). Items take `limit` (1..10000), `offset`, `bbox` (CRS84 lon/lat), `datetime`
 (RFC 3339 instant or interval, `..` for an open end) and, beyond the standard, `site_id`
-and `comparison_id`. Authentication: `Authorization: Bearer <token>` or `?api_key=<token>`;
-a token given in the query is carried into every link, so clients that follow links
-(GDAL's paging through `next`) keep it.
+and `comparison_id`. Authentication: `Authorization: Bearer <token>` (or `?api_key=<token>`
+for a single request). Links are absolute at SLIDEWATCH_PUBLIC_URL and carry no token:
+clients that follow links (GDAL's paging through `next`) send the header with each.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import CurrentToken, SessionDep
+from backend.api.deps import CurrentToken, SessionDep, public_base
 from backend.ids import RowId, parse_row_id
 from backend.services.features import (
     COLLECTIONS,
@@ -47,15 +47,15 @@ def _bad(message: str) -> HTTPException:
 
 
 class Links:
-    """Absolute links that keep the caller's `api_key`, if it came in the query."""
+    """Absolute links from the configured public URL (SLIDEWATCH_PUBLIC_URL), never from
+    the request's Host (which the client chooses), and never with a token in them: a
+    client that sent `api_key` sends it again, or an Authorization header."""
 
     def __init__(self, request: Request) -> None:
-        self.base = str(request.base_url).rstrip("/")
-        key = request.query_params.get("api_key")
-        self.auth = {"api_key": key} if key else {}
+        self.base = public_base(request)
 
     def href(self, path: str, **params: Any) -> str:
-        query = {**{k: v for k, v in params.items() if v is not None}, **self.auth}
+        query = {k: v for k, v in params.items() if v is not None}
         return f"{self.base}{path}" + (f"?{urlencode(query)}" if query else "")
 
     def link(self, path: str, rel: str, type_: str, title: str | None = None, **params) -> dict:

@@ -1,12 +1,18 @@
 """STAC: a static-style catalog of sites, surveys and comparisons (see services/stac.py)."""
 
 from collections.abc import Callable
-from urllib.parse import urlencode
 
 from fastapi import APIRouter, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import CurrentToken, SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.deps import (
+    CurrentToken,
+    SessionDep,
+    SiteDep,
+    StorageDep,
+    owned_by_site,
+    public_base,
+)
 from backend.db.models import Comparison, JobState, Survey
 from backend.ids import RowId
 from backend.services import stac
@@ -15,11 +21,9 @@ router = APIRouter(prefix="/stac", tags=["STAC"])
 
 
 def _href(request: Request) -> Callable[[str], str]:
-    """Absolute URLs of this API; a token given as `api_key` is carried into them."""
-    base = str(request.base_url).rstrip("/")
-    key = request.query_params.get("api_key")
-    query = f"?{urlencode({'api_key': key})}" if key else ""
-    return lambda path: f"{base}{path}{query}"
+    """Absolute URLs of this API at its public URL, with no token in them."""
+    base = public_base(request)
+    return lambda path: f"{base}{path}"
 
 
 @router.get("/catalog.json", summary="The root STAC catalog: one collection per site")

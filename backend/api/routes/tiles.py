@@ -16,12 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
-from urllib.parse import urlencode
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site, public_base
 from backend.db.models import Comparison, JobState, Product, Site, Survey
 from backend.ids import RowId
 from backend.services.tiles import (
@@ -108,16 +107,13 @@ def comparison_layer(
     return _layer_source(site, "comparisons", comparison_id, layer, session, storage)
 
 
-def _auth_query(request: Request) -> str:
-    key = request.query_params.get("api_key")
-    return f"?{urlencode({'api_key': key})}" if key else ""
-
-
-def tile_template(base: str, source: LayerSource, query: str = "") -> str:
+def tile_template(base: str, source: LayerSource) -> str:
+    """The XYZ template of a layer: at the public URL, with no token in it (a client sends
+    its token itself, as a header or its own `api_key`)."""
     layer = api_url(
         "sites", source.site_id, source.owner, source.owner_id, "tiles", source.spec.name
     )
-    return f"{base}{layer}/{{z}}/{{x}}/{{y}}.png{query}"
+    return f"{base}{layer}/{{z}}/{{x}}/{{y}}.png"
 
 
 async def _tile(
@@ -141,13 +137,13 @@ async def _tile(
 
 async def _tilejson(source: LayerSource, request: Request) -> dict:
     info = await run_in_threadpool(layer_info, source.path)
-    base = str(request.base_url).rstrip("/")
+    base = public_base(request)
     west, south, east, north = info.bounds
     return {
         "tilejson": "3.0.0",
         "name": f"{source.owner[:-1]} {source.owner_id} {source.spec.title}",
         "scheme": "xyz",
-        "tiles": [tile_template(base, source, _auth_query(request))],
+        "tiles": [tile_template(base, source)],
         "minzoom": info.minzoom,
         "maxzoom": info.maxzoom,
         "bounds": [west, south, east, north],
@@ -240,12 +236,11 @@ def _layers_of(
 def _wmts_response(
     request: Request, title: str, owners_title: dict, sources: list[LayerSource]
 ) -> Response:
-    base = str(request.base_url).rstrip("/")
-    query = _auth_query(request)
+    base = public_base(request)
     layers = []
     for source in sources:
         template = (
-            tile_template(base, source, query)
+            tile_template(base, source)
             .replace("{z}", "{TileMatrix}")
             .replace("{x}", "{TileCol}")
             .replace("{y}", "{TileRow}")
@@ -260,7 +255,7 @@ def _wmts_response(
                 template=template,
             )
         )
-    document = wmts_capabilities(title, str(request.url), layers)
+    document = wmts_capabilities(title, f"{base}{request.url.path}", layers)
     return Response(document, media_type="application/xml")
 
 

@@ -3,6 +3,7 @@
 import { ApiError, api, session } from "../api";
 import { escapeHtml } from "../format";
 import type { WhoAmI } from "../types";
+import { keepSignInNotice } from "./header";
 
 export function renderSignIn(app: HTMLElement, done: () => void): void {
   const notice = sessionStorage.getItem("slidewatch.notice");
@@ -38,11 +39,12 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
     error.textContent = "";
     const data = new FormData(passwordForm);
     try {
-      const body = await api<{ token: string; user: { username: string } }>("auth/sign-in", {
+      const body = await api<{ token: string; user: { username: string }; notice: string | null }>("auth/sign-in", {
         method: "POST",
         body: JSON.stringify({ username: data.get("username"), password: data.get("password") }),
       });
       session.set(body.token, body.user.username);
+      keepSignInNotice(body.notice);
       done();
     } catch (e) {
       error.textContent = e instanceof ApiError ? `Not signed in: ${e.message}.` : "The server cannot be reached.";

@@ -1,0 +1,57 @@
+"""API tokens of the caller's holder: list, make with an expiry, revoke."""
+
+from fastapi import APIRouter, HTTPException, Query, Response, status
+
+from backend.api.deps import CurrentToken, SessionDep, SettingsDep
+from backend.api.schemas_tokens import TokenCreate, TokenIssued, TokenOut
+from backend.ids import RowId
+from backend.services.tokens import TokenRejected, issue_token, list_tokens, revoke_token
+
+router = APIRouter(prefix="/auth/tokens", tags=["sign-in"])
+
+
+def _out(token, caller) -> TokenOut:
+    return TokenOut.model_validate(token).model_copy(update={"current": token.id == caller.id})
+
+
+@router.get(
+    "",
+    response_model=list[TokenOut],
+    summary="Tokens of whoever calls: a user's own, or the platform's",
+)
+def get_tokens(
+    caller: CurrentToken,
+    session: SessionDep,
+    include_ended: bool = Query(False, description="Also those revoked or expired."),
+) -> list[TokenOut]:
+    return [_out(t, caller) for t in list_tokens(session, caller, include_ended)]
+
+
+@router.post(
+    "",
+    response_model=TokenIssued,
+    status_code=status.HTTP_201_CREATED,
+    summary="A new API token that expires; its secret is in this answer only",
+)
+def create_api_token(
+    body: TokenCreate, caller: CurrentToken, session: SessionDep, settings: SettingsDep
+) -> TokenIssued:
+    days = body.days or settings.token_days
+    try:
+        token, secret = issue_token(session, caller, body.name, days, settings.token_max_days)
+    except TokenRejected as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    session.commit()
+    return TokenIssued(**_out(token, caller).model_dump(), token=secret)
+
+
+@router.delete(
+    "/{token_id}", status_code=status.HTTP_204_NO_CONTENT, summary="Revoke a token at once"
+)
+def delete_api_token(token_id: RowId, caller: CurrentToken, session: SessionDep) -> Response:
+    try:
+        revoke_token(session, caller, token_id)
+    except LookupError as exc:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from None
+    session.commit()
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,44 @@
+"""Users of the map, as an administrator manages them: list, disable, enable."""
+
+from fastapi import APIRouter, HTTPException, status
+from sqlalchemy import select
+
+from backend.api.deps import AdminToken, SessionDep
+from backend.api.schemas_tokens import UserAccountOut
+from backend.db.models import User
+from backend.ids import RowId
+from backend.services.users import disable_user, enable_user
+
+router = APIRouter(prefix="/users", tags=["users"])
+
+
+def _user(session: SessionDep, user_id: int) -> User:
+    user = session.get(User, user_id)
+    if user is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"user {user_id} not found")
+    return user
+
+
+@router.get("", response_model=list[UserAccountOut], summary="Every user of the map")
+def list_users(_admin: AdminToken, session: SessionDep) -> list[User]:
+    return list(session.scalars(select(User).order_by(User.id)))
+
+
+@router.post(
+    "/{user_id}/disable",
+    response_model=UserAccountOut,
+    summary="Disable a user: no more sign-in, and every session and token of theirs ends",
+)
+def disable(user_id: RowId, _admin: AdminToken, session: SessionDep) -> User:
+    user = _user(session, user_id)
+    disable_user(session, user)
+    session.commit()
+    return user
+
+
+@router.post("/{user_id}/enable", response_model=UserAccountOut, summary="Let a user sign in again")
+def enable(user_id: RowId, _admin: AdminToken, session: SessionDep) -> User:
+    user = _user(session, user_id)
+    enable_user(user)
+    session.commit()
+    return user

@@ -1,0 +1,74 @@
+"""The account page end to end: API tokens made with an expiry and revoked, the password
+changed; and a sign-in form that tells of a lock-out after too many wrong passwords."""
+
+from playwright.sync_api import Page, expect
+from sqlalchemy.orm import Session
+
+from backend.db.session import make_engine
+from backend.services.users import create_user
+from tests.e2e.conftest import App, shot
+
+
+def _user(app: App, username: str, password: str) -> None:
+    """A user of this test alone: a lock-out must not reach the others' accounts."""
+    engine = make_engine(app.settings.resolved_database_url)
+    with engine.begin() as connection, Session(bind=connection) as session:
+        create_user(session, username, password)
+        session.flush()
+    engine.dispose()
+
+
+def _sign_in(page: Page, app: App, username: str, password: str) -> None:
+    page.goto(app.url + "/")
+    expect(page.get_by_role("heading", name="Sign in")).to_be_visible()
+    page.get_by_label("User name").fill(username)
+    page.get_by_label("Password").fill(password)
+    page.get_by_role("button", name="Sign in").click()
+
+
+def test_tokens_are_made_and_revoked_and_the_password_changed(page: Page, app_server: App) -> None:
+    _user(app_server, "luca", "pendio-franoso")
+    _sign_in(page, app_server, "luca", "pendio-franoso")
+    page.get_by_role("link", name="Account").click()
+    expect(page.get_by_role("heading", name="API tokens")).to_be_visible()
+    expect(page.locator("#token-rows")).to_contain_text("map session of luca")
+
+    page.get_by_label("New token for").fill("qgis")
+    page.get_by_label("Valid for (days)").fill("7")
+    page.get_by_role("button", name="Make token").click()
+    expect(page.locator("#new-token-value")).to_contain_text("sw_")
+    qgis = page.locator("#token-rows tr", has_text="qgis")
+    expect(qgis).to_contain_text("API")
+    shot(page, "account-tokens")
+    page.get_by_role("button", name="Revoke qgis").click()
+    expect(page.locator("#token-rows tr", has_text="qgis")).to_have_count(0)
+
+    page.get_by_label("Current password").fill("pendio-franoso")
+    page.get_by_label("New password").fill("password123")
+    page.get_by_role("button", name="Change password").click()
+    expect(page.locator("#password-change-error")).to_contain_text("most common passwords")
+    page.get_by_label("New password").fill("frana-attiva-2026")
+    page.get_by_role("button", name="Change password").click()
+    expect(page.get_by_role("status")).to_contain_text("Your password is changed")
+    _sign_in(page, app_server, "luca", "frana-attiva-2026")
+    expect(page.get_by_role("heading", name="Sites")).to_be_visible()
+
+
+def test_a_lock_out_is_told_on_the_sign_in_form_and_after_it(page: Page, app_server: App) -> None:
+    _user(app_server, "nina", "argine-sicuro")
+    for _ in range(2):
+        _sign_in(page, app_server, "nina", "a-wrong-guess")
+        expect(page.locator("#password-error")).to_contain_text("wrong user name or password")
+    _sign_in(page, app_server, "nina", "argine-sicuro")
+    # The failures before it are told once, after signing in.
+    expect(page.locator("#sign-in-notice")).to_contain_text("2 failed sign-ins to your account")
+    page.get_by_role("button", name="Sign out").click()
+    expect(page.get_by_role("heading", name="Sign in")).to_be_visible()
+    for _ in range(5):
+        _sign_in(page, app_server, "nina", "a-wrong-guess")
+        expect(page.locator("#password-error")).to_contain_text("wrong user name or password")
+    _sign_in(page, app_server, "nina", "argine-sicuro")
+    expect(page.locator("#password-error")).to_contain_text(
+        "too many failed sign-ins to the account 'nina'"
+    )
+    shot(page, "sign-in-locked")
