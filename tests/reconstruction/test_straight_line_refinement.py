@@ -7,6 +7,7 @@ cameras' viewing directions, not in their centres alone (measured on a simulated
 flight over the mounds: an 8.5 deg roll, the DSM tilted 15 cm per metre)."""
 
 import numpy as np
+import pytest
 from pyproj import Transformer
 
 from worker.pipeline.attitude import rotation_angle_deg, rotation_world_from_camera
@@ -102,7 +103,10 @@ def _map(seed: int) -> tuple[SparseMap, np.ndarray]:
 def test_a_straight_line_keeps_its_roll_through_the_adjustment():
     for seed in (1, 2, 3):
         sparse, truth = _map(seed)
-        options = MapGeorefOptions(refine=True, georef=GeorefOptions(position_sigma_m=RTK))
+        # Adjusted although straight (by default it is not, see the test below).
+        options = MapGeorefOptions(
+            refine=True, refine_min_straightness=0.0, georef=GeorefOptions(position_sigma_m=RTK)
+        )
         result = georeference_map(sparse, _log(seed), 0.0, options)
         assert result.segments[0]["refinement"]["priors_used"] > 0
         down = rotation_world_from_camera(np.zeros(12), -90.0, np.zeros(12))
@@ -116,3 +120,19 @@ def test_a_straight_line_keeps_its_roll_through_the_adjustment():
         assert abs(across) < 0.003 and abs(along) < 0.005, (seed, across, along)
         # Two-view depth noise of 2-m baselines at 18 m, not a tilt.
         assert np.percentile(np.abs(heights - np.median(heights)), 95) < 0.25
+
+
+def test_a_straight_line_is_not_adjusted_by_default():
+    sparse, _ = _map(1)
+    before = sparse.point_xyz.copy()
+    options = MapGeorefOptions(georef=GeorefOptions(position_sigma_m=RTK))
+    result = georeference_map(sparse, _log(1), 0.0, options)
+    assert result.segments[0]["refinement"]["skipped"].startswith("a near-straight track")
+    # The points moved by the fitted similarity alone: distances between them kept,
+    # times its scale of 2.
+    pairs = np.random.default_rng(0).integers(0, len(before), (200, 2))
+    ratio = np.linalg.norm(
+        sparse.point_xyz[pairs[:, 0]] - sparse.point_xyz[pairs[:, 1]], axis=1
+    ) / np.maximum(np.linalg.norm(before[pairs[:, 0]] - before[pairs[:, 1]], axis=1), 1e-9)
+    assert np.median(ratio) == pytest.approx(2.0, rel=0.01)
+    assert np.ptp(ratio[np.isfinite(ratio) & (ratio > 0)]) < 1e-6
