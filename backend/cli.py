@@ -122,17 +122,42 @@ def _set_user_enabled(username: str, enabled: bool) -> None:
 @click.argument("username")
 @click.option("--display-name", default="", help="The name the map shows.")
 @click.password_option(help="Asked for when not given (at least 8 characters).")
-def create_user_command(username: str, display_name: str, password: str) -> None:
-    """Create a user who signs in to the map with a password."""
+@click.option(
+    "--organisation",
+    default=None,
+    help="The organisation the user joins. Default: the default organisation.",
+)
+@click.option(
+    "--role",
+    type=click.Choice(["viewer", "analyst", "manager", "admin"]),
+    default="viewer",
+    show_default=True,
+    help="The user's role in it.",
+)
+def create_user_command(
+    username: str, display_name: str, password: str, organisation: str | None, role: str
+) -> None:
+    """Create a user who signs in to the map with a password, a member of an organisation."""
+    from sqlalchemy import select
+
+    from backend.db.models import Membership, Organisation, Role, default_organisation
     from backend.db.session import session_scope
     from backend.services.users import UserRejected, create_user
 
     try:
         with session_scope() as session:
-            create_user(session, username, password, display_name)
+            user = create_user(session, username, password, display_name)
+            joined = (
+                session.scalar(select(Organisation).where(Organisation.name == organisation))
+                if organisation
+                else default_organisation(session)
+            )
+            if joined is None:
+                raise UserRejected(f"no organisation named {organisation!r}")
+            session.add(Membership(organisation=joined, user_id=user.id, role=Role(role)))
     except UserRejected as exc:
         raise click.ClickException(str(exc)) from None
-    click.echo(f"user {username} created")
+    click.echo(f"user {username} created, {role} of {joined.name}")
 
 
 @main.command()
@@ -225,7 +250,7 @@ def ensure_admin_user(settings: Settings) -> str | None:
 
     from sqlalchemy import select
 
-    from backend.db.models import User
+    from backend.db.models import Membership, Role, User, default_organisation
     from backend.db.session import session_scope
     from backend.services.users import create_user
 
@@ -233,7 +258,12 @@ def ensure_admin_user(settings: Settings) -> str | None:
     with session_scope() as session:
         if session.scalar(select(User.id).limit(1)) is None:
             password = secrets.token_urlsafe(12)
-            create_user(session, "admin", password, "Administrator")
+            admin = create_user(session, "admin", password, "Administrator")
+            session.add(
+                Membership(
+                    organisation=default_organisation(session), user_id=admin.id, role=Role.admin
+                )
+            )
             password_file.write_text(password + "\n")
             password_file.chmod(0o600)
     return password_file.read_text().strip() if password_file.exists() else None

@@ -67,3 +67,11 @@ def create_video_upload(
     )
     assert created.status_code == 201, created.text
     return created.headers["Location"]
+
+
+def join(session, user_id: int, role: str, organisation=None) -> None:
+    """Make the user a member with `role` of `organisation` (default: the default one)."""
+    from backend.db.models import Membership, Role, default_organisation
+
+    organisation = organisation or default_organisation(session)
+    session.add(Membership(organisation=organisation, user_id=user_id, role=Role(role)))

@@ -92,29 +92,6 @@ def require_token(
 CurrentToken = Annotated[ApiToken, Depends(require_token)]
 
 
-def require_admin(token: CurrentToken) -> ApiToken:
-    """An API token of the platform (one that belongs to no user): it administers."""
-    if token.user_id is not None:
-        raise HTTPException(
-            status.HTTP_403_FORBIDDEN,
-            "this needs an administrator's API token (slidewatch create-token)",
-        )
-    return token
-
-
-AdminToken = Annotated[ApiToken, Depends(require_admin)]
-
-
-def get_site(site_id: RowId, session: SessionDep, _token: CurrentToken) -> Site:
-    site = session.get(Site, site_id)
-    if site is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"site {site_id} not found")
-    return site
-
-
-SiteDep = Annotated[Site, Depends(get_site)]
-
-
 def owned_by_site(
     session: Session, model: type[Owned], site: Site, item_id: RowId, noun: str
 ) -> Owned:

@@ -34,6 +34,11 @@ def check_timezone(name: str | None) -> str | None:
 
 class SiteCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
+    organisation_id: RowId | None = Field(
+        default=None,
+        description="The organisation it belongs to (the token must be a manager there); "
+        "default: the only one the token manages.",
+    )
     description: str = Field(default="", max_length=10_000)
     area_of_interest: dict[str, Any] | None = Field(
         default=None, description="GeoJSON Polygon or MultiPolygon in WGS84 lon/lat."
@@ -58,6 +63,7 @@ class SiteUpdate(BaseModel):
 
 class SiteOut(ORMModel):
     id: int
+    organisation_id: int
     name: str
     description: str
     area_of_interest: dict[str, Any] | None

@@ -4,7 +4,9 @@ from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from backend.db.models import Role
 from backend.db.tokens import as_utc
+from backend.ids import RowId
 
 
 class TokenOut(BaseModel):
@@ -18,6 +20,11 @@ class TokenOut(BaseModel):
     last_used_at: datetime | None
     expires_at: datetime | None = Field(description="None: made before tokens expired.")
     revoked_at: datetime | None
+    role: Role | None = Field(default=None, description="The role it is held to, if any.")
+    site_id: int | None = Field(default=None, description="The one site it reaches, if any.")
+    organisation_id: int | None = Field(
+        default=None, description="A service's token: its organisation."
+    )
     current: bool = Field(default=False, description="Whether this request was made with it.")
 
     @field_validator("created_at", "last_used_at", "expires_at", "revoked_at")
@@ -33,6 +40,15 @@ class TokenCreate(BaseModel):
         gt=0,
         description="How long it is valid; default SLIDEWATCH_TOKEN_DAYS, at most "
         "SLIDEWATCH_TOKEN_MAX_DAYS.",
+    )
+    role: Role | None = Field(
+        default=None, description="Hold it to this role (never more than the caller's)."
+    )
+    site_id: RowId | None = Field(default=None, description="Hold it to this site.")
+    organisation_id: RowId | None = Field(
+        default=None,
+        description="The platform administrator only: a service's token of this "
+        "organisation (with `role`, default viewer).",
     )
 
 

@@ -24,8 +24,10 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    event,
+    select,
 )
-from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, relationship
 
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
@@ -78,6 +80,67 @@ def _enum(cls: type[enum.StrEnum], name: str) -> Enum:
     return Enum(cls, name=name, native_enum=False, length=16, validate_strings=True)
 
 
+class Role(enum.StrEnum):
+    """What a member may do in an organisation; each role may do what the ones before it may."""
+
+    viewer = "viewer"  # read
+    analyst = "analyst"  # + upload, compare, confirm detections, reports
+    manager = "manager"  # + sites, alerts, schedules, members, deletions
+    admin = "admin"  # + everything, managers and admins among the members
+
+    @property
+    def rank(self) -> int:
+        return list(Role).index(self)
+
+
+class Organisation(Base):
+    """A body whose staff watch its slopes (a municipality, an agency): it owns sites."""
+
+    __tablename__ = "organisations"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    # Sites made without naming an organisation belong to the default one.
+    is_default: Mapped[bool] = mapped_column(Boolean, default=False, server_default="0")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Membership(Base):
+    """A user's role in an organisation."""
+
+    __tablename__ = "memberships"
+    __table_args__ = (
+        UniqueConstraint("organisation_id", "user_id", name="uq_memberships_organisation_user"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    organisation_id: Mapped[int] = mapped_column(
+        ForeignKey("organisations.id", ondelete="CASCADE"), index=True
+    )
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    role: Mapped[Role] = mapped_column(_enum(Role, "member_role"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    user: Mapped[User] = relationship()
+    organisation: Mapped[Organisation] = relationship()
+
+
+class AuditEntry(Base):
+    """Who changed what: sites, alerts, schedules, members, deletions, tokens, users."""
+
+    __tablename__ = "audit_log"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+    actor: Mapped[str] = mapped_column(String(200))  # user name, or "token NAME"
+    # Plain ids, no foreign keys: the record outlives what it speaks of.
+    organisation_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    site_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    action: Mapped[str] = mapped_column(String(64))  # e.g. "site.update", "member.remove"
+    target: Mapped[str] = mapped_column(String(200), default="")
+    details: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
 class ApiToken(Base):
     __tablename__ = "api_tokens"
 
@@ -96,6 +159,15 @@ class ApiToken(Base):
     expires_at: Mapped[datetime | None]
     # "session": made by signing in to the map; "api": made to be given to a program.
     kind: Mapped[str] = mapped_column(String(16), default="api", server_default="api")
+    # A token of no user is a service's: of one organisation with `role`, or, with no
+    # organisation, the platform administrator's (every organisation, every role). A
+    # user's token may be held to less than the user's roles: `role` caps them.
+    organisation_id: Mapped[int | None] = mapped_column(
+        ForeignKey("organisations.id", ondelete="CASCADE"), index=True
+    )
+    role: Mapped[Role | None] = mapped_column(_enum(Role, "token_role"))
+    # Only this site, when set.
+    site_id: Mapped[int | None] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"))
 
     user: Mapped[User | None] = relationship()
 
@@ -104,6 +176,7 @@ class Site(Base):
     __tablename__ = "sites"
 
     id: Mapped[int] = mapped_column(primary_key=True)
+    organisation_id: Mapped[int] = mapped_column(ForeignKey("organisations.id"), index=True)
     name: Mapped[str] = mapped_column(String(200), unique=True)
     description: Mapped[str] = mapped_column(Text, default="")
     area_of_interest: Mapped[dict[str, Any] | None]
@@ -112,6 +185,7 @@ class Site(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     surveys: Mapped[list[Survey]] = relationship(back_populates="site")
+    organisation: Mapped[Organisation] = relationship()
 
 
 class StoredFile(Base):
@@ -572,3 +646,26 @@ class TrainingRun(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     job: Mapped[Job | None] = relationship(viewonly=True)
+
+
+# --- Organisations: a site made without one belongs to the default organisation -------------
+
+DEFAULT_ORGANISATION = "Default organisation"
+
+
+def default_organisation(session: Session) -> Organisation:
+    """The organisation of the data that existed before organisations did (made by the
+    migration), and of sites made without naming one; made again if it is missing."""
+    with session.no_autoflush:
+        found = session.scalar(select(Organisation).where(Organisation.is_default.is_(True)))
+    if found is None:
+        found = Organisation(name=DEFAULT_ORGANISATION, is_default=True)
+        session.add(found)
+    return found
+
+
+@event.listens_for(Session, "before_flush")
+def _sites_without_organisation(session: Session, _context: object, _instances: object) -> None:
+    for item in session.new:
+        if isinstance(item, Site) and item.organisation_id is None and item.organisation is None:
+            item.organisation = default_organisation(session)

@@ -48,6 +48,8 @@ class FeatureQuery:
     datetime: Interval | None = None
     site_id: int | None = None
     comparison_id: int | None = None
+    # The sites whose features the caller may see; None: every site.
+    visible: frozenset[int] | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,8 @@ def _surveys_query(q: FeatureQuery) -> Select:
     query = select(Survey).order_by(Survey.id)
     if q.site_id is not None:
         query = query.where(Survey.site_id == q.site_id)
+    if q.visible is not None:
+        query = query.where(Survey.site_id.in_(q.visible))
     if q.datetime is not None:
         if q.datetime.start is not None:
             query = query.where(Survey.captured_at >= q.datetime.start)
@@ -179,6 +183,8 @@ def _detections_query(q: FeatureQuery) -> Select:
     )
     if q.site_id is not None:
         query = query.where(Comparison.site_id == q.site_id)
+    if q.visible is not None:
+        query = query.where(Comparison.site_id.in_(q.visible))
     if q.comparison_id is not None:
         query = query.where(Detection.comparison_id == q.comparison_id)
     if q.bbox is not None:
@@ -262,6 +268,8 @@ def query_features(
         query = select(Site).order_by(Site.id)
         if q.site_id is not None:
             query = query.where(Site.id == q.site_id)
+        if q.visible is not None:
+            query = query.where(Site.id.in_(q.visible))
         features = [_site_feature(site) for site in session.scalars(query)]
         if q.bbox is not None:
             features = [
@@ -273,26 +281,33 @@ def query_features(
     raise KeyError(collection_id)
 
 
-def get_feature(session: Session, collection_id: str, feature_id: int) -> dict[str, Any] | None:
+def get_feature(
+    session: Session, collection_id: str, feature_id: int, visible: frozenset[int] | None = None
+) -> dict[str, Any] | None:
+    """One feature; None when there is none, or it is of a site not in `visible`."""
     if collection_id == "detections":
         row = session.execute(
-            _detections_query(FeatureQuery()).where(Detection.id == feature_id)
+            _detections_query(FeatureQuery(visible=visible)).where(Detection.id == feature_id)
         ).first()
         return _detection_feature(*row) if row else None
     if collection_id == "surveys":
         survey = session.get(Survey, feature_id)
-        return _survey_feature(survey) if survey else None
+        seen = survey is not None and (visible is None or survey.site_id in visible)
+        return _survey_feature(survey) if seen else None  # type: ignore[arg-type]
     if collection_id == "sites":
         site = session.get(Site, feature_id)
-        return _site_feature(site) if site else None
+        seen = site is not None and (visible is None or site.id in visible)
+        return _site_feature(site) if seen else None  # type: ignore[arg-type]
     raise KeyError(collection_id)
 
 
 def collection_extent(
-    session: Session, collection_id: str
+    session: Session, collection_id: str, visible: frozenset[int] | None = None
 ) -> tuple[BBox | None, tuple[str | None, str | None] | None]:
-    """Spatial extent (CRS84) and temporal extent of everything in a collection."""
+    """Spatial extent (CRS84) and temporal extent of what the caller sees of a collection
+    (the sites in `visible`; None: all)."""
     if collection_id == "detections":
+        seen = [] if visible is None else [Comparison.site_id.in_(visible)]
         bounds = session.execute(
             select(
                 func.min(Detection.min_lon),
@@ -304,12 +319,15 @@ def collection_extent(
             )
             .join(Comparison, Detection.comparison_id == Comparison.id)
             .join(_Post, Comparison.post_survey_id == _Post.id)
-            .where(Comparison.status == JobState.succeeded)
+            .where(Comparison.status == JobState.succeeded, *seen)
         ).one()
         bbox = None if bounds[0] is None else tuple(float(b) for b in bounds[:4])
         return bbox, (_maybe_rfc3339(bounds[4]), _maybe_rfc3339(bounds[5]))  # type: ignore[return-value]
     if collection_id == "surveys":
-        surveys = list(session.scalars(select(Survey).where(Survey.status == SurveyStatus.ready)))
+        query = select(Survey).where(Survey.status == SurveyStatus.ready)
+        if visible is not None:
+            query = query.where(Survey.site_id.in_(visible))
+        surveys = list(session.scalars(query))
         footprints = [shape(s.footprint) for s in surveys if s.footprint]
         bbox = tuple(unary_union(footprints).bounds) if footprints else None
         times = [s.captured_at for s in surveys]
@@ -318,11 +336,16 @@ def collection_extent(
     if collection_id == "sites":
         geometries = [
             shape(f["geometry"])
-            for f in (_site_feature(s) for s in session.scalars(select(Site)))
+            for f in (_site_feature(s) for s in session.scalars(_sites(visible)))
             if f["geometry"]
         ]
         return (tuple(unary_union(geometries).bounds) if geometries else None), None  # type: ignore[return-value]
     raise KeyError(collection_id)
+
+
+def _sites(visible: frozenset[int] | None) -> Select:
+    query = select(Site)
+    return query if visible is None else query.where(Site.id.in_(visible))
 
 
 def _maybe_rfc3339(value: Any) -> str | None:

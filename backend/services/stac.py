@@ -72,14 +72,18 @@ def _surveys(session: Session, site_id: int) -> list[Survey]:
     )
 
 
-def root_catalog(session: Session, href: Href) -> dict[str, Any]:
+def root_catalog(session: Session, href: Href, visible: set[int] | None = None) -> dict[str, Any]:
+    """The catalog of the sites in `visible` (None: every site)."""
     catalog = pystac.Catalog(
         id="slidewatch",
         title="slidewatch",
         description="Drone surveys of monitored slopes and the landslides found between them.",
     )
     catalog.set_self_href(href("/stac/catalog.json"))
-    for site in session.scalars(select(Site).order_by(Site.id)):
+    query = select(Site).order_by(Site.id)
+    if visible is not None:
+        query = query.where(Site.id.in_(visible))
+    for site in session.scalars(query):
         catalog.add_link(
             _link(
                 "child",

@@ -69,6 +69,12 @@ PROTECTED = [
     ("GET", "/api/v1/users"),
     ("POST", "/api/v1/users/1/disable"),
     ("POST", "/api/v1/users/1/enable"),
+    ("GET", "/api/v1/organisations"),
+    ("POST", "/api/v1/organisations"),
+    ("GET", "/api/v1/organisations/1/members"),
+    ("PUT", "/api/v1/organisations/1/members/{username}"),
+    ("DELETE", "/api/v1/organisations/1/members/{username}"),
+    ("GET", "/api/v1/organisations/1/audit"),
     ("POST", "/api/v1/uploads"),
     ("HEAD", "/api/v1/uploads/1"),
     ("PATCH", "/api/v1/uploads/1"),
@@ -117,6 +123,7 @@ def test_every_api_route_is_listed_here(app: FastAPI) -> None:
                 "detection_id",
                 "token_id",
                 "user_id",
+                "organisation_id",
             ):
                 path = path.replace("{" + name + "}", "{id}")
             routes |= {(method.upper(), path) for method in operations}

@@ -6,6 +6,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from backend.services.users import create_user
+from tests.api_helpers import join
 from tests.monitoring_helpers import finished_comparison
 from worker.simulator.dsm_pair import DsmPairPaths
 
@@ -18,7 +19,8 @@ def ids(client: TestClient, auth: dict, dsm_pair_files: DsmPairPaths) -> dict[st
 @pytest.fixture
 def maria(app: FastAPI, client: TestClient) -> dict[str, str]:
     with app.state.sessionmaker() as session:
-        create_user(session, "maria", "landslide-2026")
+        user = create_user(session, "maria", "landslide-2026")
+        join(session, user.id, "analyst")  # confirms detections
         session.commit()
     body = {"username": "maria", "password": "landslide-2026"}
     token = client.post("/api/v1/auth/sign-in", json=body).json()["token"]

@@ -100,5 +100,10 @@ def test_bad_accounts_are_refused_in_plain_words(
 def test_create_user_command(app: FastAPI) -> None:
     result = CliRunner().invoke(main, ["create-user", "luca", "--password", "pendio-franoso"])
     assert result.exit_code == 0, result.output
+    assert "viewer of Default organisation" in result.output
     result = CliRunner().invoke(main, ["create-user", "luca", "--password", "pendio-franoso"])
     assert result.exit_code != 0 and "exists" in result.output
+    analyst = ["create-user", "anna", "--password", "frana-attiva", "--role", "analyst"]
+    assert "analyst of Default organisation" in CliRunner().invoke(main, analyst).output
+    nowhere = ["create-user", "ugo", "--password", "frana-attiva", "--organisation", "Nowhere"]
+    assert "no organisation named 'Nowhere'" in CliRunner().invoke(main, nowhere).output

@@ -19,6 +19,7 @@ from backend.config import Settings
 from backend.db.migrate import upgrade
 from backend.db.session import make_engine
 from backend.services.users import create_user
+from tests.api_helpers import join
 from tests.integration.conftest import SlidewatchProcess
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
@@ -73,7 +74,8 @@ def app_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
         from sqlalchemy.orm import Session
 
         with Session(bind=connection) as session:
-            create_user(session, USER["username"], USER["password"], "Maria Rossi")
+            user = create_user(session, USER["username"], USER["password"], "Maria Rossi")
+            join(session, user.id, "admin")  # makes sites, uploads, compares, judges
             session.flush()
     engine.dispose()
     port = _free_port()

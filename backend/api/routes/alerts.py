@@ -6,7 +6,8 @@ from typing import Annotated
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from sqlalchemy import select
 
-from backend.api.deps import SessionDep, SettingsDep, SiteDep, owned_by_site
+from backend.api.access import SignedIn, SiteManager
+from backend.api.deps import SessionDep, SettingsDep, owned_by_site
 from backend.api.schemas_monitoring import (
     AlertSettingsIn,
     AlertSettingsOut,
@@ -20,17 +21,20 @@ from backend.db.models import AlertSettings, Delivery, Webhook, utcnow
 from backend.ids import RowId
 from backend.outbound import UrlRefused, parse_networks, resolve_target
 from backend.services.alerts import alert_settings
+from backend.services.audit import record
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["alerts"])
 
 
 @router.get("/alerts", response_model=AlertSettingsOut, summary="When the site alerts")
-def get_alert_settings(site: SiteDep, session: SessionDep) -> AlertSettings:
+def get_alert_settings(site: SiteManager, session: SessionDep) -> AlertSettings:
     return alert_settings(session, site.id)
 
 
 @router.put("/alerts", response_model=AlertSettingsOut, summary="Set when the site alerts")
-def put_alert_settings(body: AlertSettingsIn, site: SiteDep, session: SessionDep) -> AlertSettings:
+def put_alert_settings(
+    body: AlertSettingsIn, site: SiteManager, session: SessionDep, token: SignedIn
+) -> AlertSettings:
     """Thresholds for `landslides_detected` (all must hold), e-mail recipients, job failures."""
     settings = session.get(AlertSettings, site.id)
     if settings is None:
@@ -39,6 +43,8 @@ def put_alert_settings(body: AlertSettingsIn, site: SiteDep, session: SessionDep
     for field, value in body.model_dump().items():
         setattr(settings, field, value)
     settings.updated_at = utcnow()
+    record(session, token, "alerts.update", site=site, target=f"site {site.id}",
+           details=body.model_dump())  # fmt: skip
     session.commit()
     return settings
 
@@ -50,7 +56,11 @@ def put_alert_settings(body: AlertSettingsIn, site: SiteDep, session: SessionDep
     summary="Add a webhook; its signing secret is in this response only",
 )
 def create_webhook(
-    body: WebhookCreate, site: SiteDep, session: SessionDep, settings: SettingsDep
+    body: WebhookCreate,
+    site: SiteManager,
+    session: SessionDep,
+    settings: SettingsDep,
+    token: SignedIn,
 ) -> WebhookCreated:
     """The URL must resolve to public addresses only (or to a network of
     SLIDEWATCH_WEBHOOK_ALLOWED_NETWORKS); it is checked again at every call."""
@@ -62,12 +72,15 @@ def create_webhook(
         site_id=site.id, secret="whsec_" + secrets.token_urlsafe(32), **body.model_dump()
     )
     session.add(webhook)
+    session.flush()
+    record(session, token, "webhook.create", site=site, target=f"webhook {webhook.id}",
+           details={"url": webhook.url, "events": webhook.events})  # fmt: skip
     session.commit()
     return WebhookCreated(**WebhookOut.model_validate(webhook).model_dump(), secret=webhook.secret)
 
 
 @router.get("/webhooks", response_model=list[WebhookOut])
-def list_webhooks(site: SiteDep, session: SessionDep) -> list[Webhook]:
+def list_webhooks(site: SiteManager, session: SessionDep) -> list[Webhook]:
     return list(
         session.scalars(select(Webhook).where(Webhook.site_id == site.id).order_by(Webhook.id))
     )
@@ -75,20 +88,27 @@ def list_webhooks(site: SiteDep, session: SessionDep) -> list[Webhook]:
 
 @router.patch("/webhooks/{webhook_id}", response_model=WebhookOut)
 def update_webhook(
-    webhook_id: RowId, body: WebhookUpdate, site: SiteDep, session: SessionDep
+    webhook_id: RowId, body: WebhookUpdate, site: SiteManager, session: SessionDep, token: SignedIn
 ) -> Webhook:
     webhook = owned_by_site(session, Webhook, site, webhook_id, "webhook")
-    for field, value in body.model_dump(exclude_unset=True).items():
-        if value is not None:
-            setattr(webhook, field, value)
+    changes = {k: v for k, v in body.model_dump(exclude_unset=True).items() if v is not None}
+    for field, value in changes.items():
+        setattr(webhook, field, value)
+    record(session, token, "webhook.update", site=site, target=f"webhook {webhook.id}",
+           details=changes)  # fmt: skip
     session.commit()
     return webhook
 
 
 @router.delete("/webhooks/{webhook_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_webhook(webhook_id: RowId, site: SiteDep, session: SessionDep) -> Response:
+def delete_webhook(
+    webhook_id: RowId, site: SiteManager, session: SessionDep, token: SignedIn
+) -> Response:
     """Delete the webhook with its deliveries."""
-    session.delete(owned_by_site(session, Webhook, site, webhook_id, "webhook"))
+    webhook = owned_by_site(session, Webhook, site, webhook_id, "webhook")
+    record(session, token, "webhook.delete", site=site, target=f"webhook {webhook.id}",
+           details={"url": webhook.url})  # fmt: skip
+    session.delete(webhook)
     session.commit()
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
@@ -99,7 +119,7 @@ def delete_webhook(webhook_id: RowId, site: SiteDep, session: SessionDep) -> Res
     summary="The delivery log: every webhook call and e-mail with its attempts, newest first",
 )
 def list_deliveries(
-    site: SiteDep,
+    site: SiteManager,
     session: SessionDep,
     webhook_id: Annotated[int | None, Query()] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,

@@ -2,7 +2,8 @@
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 
-from backend.api.deps import CurrentToken, SessionDep, SettingsDep
+from backend.api.access import SignedIn
+from backend.api.deps import SessionDep, SettingsDep
 from backend.api.schemas_map import SignInOut, SignInRequest, UserOut, WhoAmI
 from backend.api.schemas_tokens import PasswordChange
 from backend.services.sign_in_throttle import clear_account, lockout, record_failure, utcnow
@@ -61,7 +62,7 @@ def sign_in_route(
     status_code=status.HTTP_204_NO_CONTENT,
     responses={409: {"description": "An API token, not a sign-in: revoke it instead."}},
 )
-def sign_out_route(token: CurrentToken, session: SessionDep) -> Response:
+def sign_out_route(token: SignedIn, session: SessionDep) -> Response:
     """End this sign-in: its token stops working at once. An API token is not a sign-in:
     it is revoked with DELETE /auth/tokens/{id}, and answered 409 here rather than left
     valid behind a 204."""
@@ -84,7 +85,7 @@ def sign_out_route(token: CurrentToken, session: SessionDep) -> Response:
 def change_password_route(
     body: PasswordChange,
     request: Request,
-    token: CurrentToken,
+    token: SignedIn,
     session: SessionDep,
     settings: SettingsDep,
 ) -> Response:
@@ -118,7 +119,7 @@ def _address(request: Request) -> str:
 
 
 @router.get("/me", response_model=WhoAmI)
-def who_am_i(token: CurrentToken) -> WhoAmI:
+def who_am_i(token: SignedIn) -> WhoAmI:
     if token.user is not None:
         return WhoAmI(
             kind="user",

@@ -2,11 +2,13 @@ from fastapi import APIRouter, HTTPException, Response, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
-from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
+from backend.api.deps import CeleryDep, SessionDep, StorageDep, owned_by_site
 from backend.api.schemas import ComparisonCreate, ComparisonCreated, ComparisonOut, ProductOut
 from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
 from backend.db.models import Comparison, Job, Site
 from backend.ids import RowId
+from backend.services.audit import record
 from backend.services.comparisons import ComparisonRejected, create_comparison
 from backend.services.deletion import delete_comparison
 from worker.jobs.control import QueueUnavailable
@@ -27,7 +29,7 @@ def _job_of(session: SessionDep, comparison: Comparison) -> Job | None:
 @router.post("", response_model=ComparisonCreated, status_code=status.HTTP_202_ACCEPTED)
 def create(
     body: ComparisonCreate,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
     celery: CeleryDep,
     storage: StorageDep,
@@ -52,7 +54,7 @@ def create(
 
 @router.get("", response_model=list[ComparisonOut])
 def list_comparisons(
-    site: SiteDep, session: SessionDep, storage: StorageDep
+    site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> list[ComparisonOut]:
     query = select(Comparison).where(Comparison.site_id == site.id).order_by(Comparison.id)
     return [comparison_out(c, _job_of(session, c), storage) for c in session.scalars(query)]
@@ -60,7 +62,7 @@ def list_comparisons(
 
 @router.get("/{comparison_id}", response_model=ComparisonOut)
 def get_comparison(
-    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> ComparisonOut:
     comparison = comparison_of_site(session, site, comparison_id)
     return comparison_out(comparison, _job_of(session, comparison), storage)
@@ -72,7 +74,7 @@ def get_comparison(
     response_class=JSONResponse,
     responses={200: {"content": {"application/geo+json": {}}}},
 )
-def get_detections(comparison_id: RowId, site: SiteDep, session: SessionDep) -> JSONResponse:
+def get_detections(comparison_id: RowId, site: SiteViewer, session: SessionDep) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
     collection = {
         "type": "FeatureCollection",
@@ -83,7 +85,7 @@ def get_detections(comparison_id: RowId, site: SiteDep, session: SessionDep) -> 
 
 @router.get("/{comparison_id}/products", response_model=list[ProductOut])
 def list_comparison_products(
-    comparison_id: RowId, site: SiteDep, session: SessionDep
+    comparison_id: RowId, site: SiteViewer, session: SessionDep
 ) -> list[ProductOut]:
     comparison = comparison_of_site(session, site, comparison_id)
     return [product_out(p) for p in comparison.products]
@@ -91,8 +93,13 @@ def list_comparison_products(
 
 @router.delete("/{comparison_id}", status_code=status.HTTP_204_NO_CONTENT)
 def remove_comparison(
-    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId,
+    site: SiteManager,
+    session: SessionDep,
+    storage: StorageDep,
+    token: SignedIn,
 ) -> Response:
     comparison = comparison_of_site(session, site, comparison_id)
+    record(session, token, "comparison.delete", site=site, target=f"comparison {comparison.id}")
     delete_comparison(session, storage, comparison)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

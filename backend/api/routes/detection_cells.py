@@ -5,7 +5,8 @@ import json
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import SessionDep, SiteDep, StorageDep
+from backend.api.access import SiteViewer
+from backend.api.deps import SessionDep, StorageDep
 from backend.api.routes.comparisons import comparison_of_site
 from backend.ids import RowId
 from backend.storage_layout import comparison_file
@@ -23,7 +24,7 @@ CELLS_FILE = "cells.geojson"
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def get_cells(
-    comparison_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
     path = storage.absolute(comparison_file(comparison.id, CELLS_FILE))

@@ -9,7 +9,8 @@ GET    /sites/{site_id}/training-labels      GeoJSON, one feature per verdict
 from fastapi import APIRouter, HTTPException, Response, status
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import CurrentToken, SessionDep, SiteDep
+from backend.api.access import SignedIn, SiteAnalyst, SiteViewer
+from backend.api.deps import SessionDep
 from backend.api.routes.comparisons import comparison_of_site
 from backend.api.schemas_map import FeedbackIn, FeedbackOut
 from backend.db.models import Detection, DetectionFeedback, Site
@@ -38,9 +39,9 @@ def put_feedback(
     comparison_id: RowId,
     detection_id: RowId,
     body: FeedbackIn,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
-    token: CurrentToken,
+    token: SignedIn,
 ) -> DetectionFeedback:
     """Your verdict on the detection; giving it again changes it."""
     detection = detection_of(session, site, comparison_id, detection_id)
@@ -49,7 +50,7 @@ def put_feedback(
 
 @router.get(f"{DETECTION}/feedback", response_model=list[FeedbackOut])
 def list_feedback(
-    comparison_id: RowId, detection_id: RowId, site: SiteDep, session: SessionDep
+    comparison_id: RowId, detection_id: RowId, site: SiteViewer, session: SessionDep
 ) -> list[DetectionFeedback]:
     """Everyone's verdicts on the detection, with who and when."""
     return list(detection_of(session, site, comparison_id, detection_id).feedback)
@@ -59,9 +60,9 @@ def list_feedback(
 def delete_feedback(
     comparison_id: RowId,
     detection_id: RowId,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
-    token: CurrentToken,
+    token: SignedIn,
 ) -> Response:
     """Withdraw your verdict."""
     detection = detection_of(session, site, comparison_id, detection_id)
@@ -78,7 +79,7 @@ def delete_feedback(
     response_class=JSONResponse,
     responses={200: {"content": {"application/geo+json": {}}}},
 )
-def get_training_labels(site: SiteDep, session: SessionDep) -> JSONResponse:
+def get_training_labels(site: SiteViewer, session: SessionDep) -> JSONResponse:
     return JSONResponse(
         training_labels(session, site.id),
         media_type="application/geo+json",

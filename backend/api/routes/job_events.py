@@ -17,7 +17,8 @@ from fastapi.responses import StreamingResponse
 from sqlalchemy.orm import sessionmaker
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import SessionDep, SiteDep
+from backend.api.access import SiteViewer
+from backend.api.deps import SessionDep
 from backend.api.routes.jobs import job_of_site
 from backend.api.serializers import job_out
 from backend.db.models import Job, JobState
@@ -67,7 +68,7 @@ async def job_events(
     responses={200: {"content": {"text/event-stream": {}}}},
 )
 def stream_job_events(
-    job_id: RowId, request: Request, site: SiteDep, session: SessionDep
+    job_id: RowId, request: Request, site: SiteViewer, session: SessionDep
 ) -> StreamingResponse:
     job_of_site(session, site, job_id)
     session.rollback()  # hold no transaction while the stream lasts (it reads on its own)

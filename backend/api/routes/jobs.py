@@ -1,7 +1,8 @@
 from fastapi import APIRouter, HTTPException, status
 from sqlalchemy import select
 
-from backend.api.deps import CeleryDep, SessionDep, SiteDep, owned_by_site
+from backend.api.access import SiteAnalyst, SiteViewer
+from backend.api.deps import CeleryDep, SessionDep, owned_by_site
 from backend.api.schemas import JobOut
 from backend.api.serializers import job_out
 from backend.db.models import Job, JobState, Site
@@ -16,18 +17,18 @@ def job_of_site(session: SessionDep, site: Site, job_id: RowId) -> Job:
 
 
 @router.get("", response_model=list[JobOut])
-def list_jobs(site: SiteDep, session: SessionDep) -> list[JobOut]:
+def list_jobs(site: SiteViewer, session: SessionDep) -> list[JobOut]:
     jobs = session.scalars(select(Job).where(Job.site_id == site.id).order_by(Job.id.desc()))
     return [job_out(job) for job in jobs]
 
 
 @router.get("/{job_id}", response_model=JobOut, summary="Job state with per-stage progress")
-def get_job(job_id: RowId, site: SiteDep, session: SessionDep) -> JobOut:
+def get_job(job_id: RowId, site: SiteViewer, session: SessionDep) -> JobOut:
     return job_out(job_of_site(session, site, job_id))
 
 
 @router.post("/{job_id}/retry", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
-def retry_job(job_id: RowId, site: SiteDep, session: SessionDep, celery: CeleryDep) -> JobOut:
+def retry_job(job_id: RowId, site: SiteAnalyst, session: SessionDep, celery: CeleryDep) -> JobOut:
     """Run a failed job again from its failed stage; finished stages are not redone."""
     job = job_of_site(session, site, job_id)
     if job.state != JobState.failed:

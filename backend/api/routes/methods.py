@@ -2,7 +2,7 @@
 
 from fastapi import APIRouter
 
-from backend.api.deps import CurrentToken
+from backend.api.access import SignedIn
 from backend.api.schemas import MethodOut
 from backend.services.comparisons import list_methods
 
@@ -14,6 +14,6 @@ router = APIRouter(prefix="/methods", tags=["comparisons"])
     response_model=list[MethodOut],
     summary="Detection methods: what each does, its stages, and which is the default",
 )
-def get_methods(_token: CurrentToken) -> list[MethodOut]:
+def get_methods(_token: SignedIn) -> list[MethodOut]:
     """Exactly one is the default: what a comparison created without a method runs."""
     return [MethodOut(**method) for method in list_methods()]

@@ -6,7 +6,8 @@ of background work; its state, progress and error are the job's, read from the d
 
 from fastapi import APIRouter, HTTPException, status
 
-from backend.api.deps import CeleryDep, CurrentToken, SessionDep, StorageDep
+from backend.api.access import PlatformAdmin, SignedIn
+from backend.api.deps import CeleryDep, SessionDep, StorageDep
 from backend.api.schemas_models import ModelOut, TrainingCreate, TrainingOut
 from backend.db import model_registry
 from backend.db.models import JobState, ModelVersion, TrainingRun
@@ -34,7 +35,7 @@ def model_out(row: ModelVersion) -> ModelOut:
 
 
 @router.get("", response_model=list[ModelOut], summary="Registered detection models")
-def list_models(session: SessionDep, _token: CurrentToken) -> list[ModelOut]:
+def list_models(session: SessionDep, _token: SignedIn) -> list[ModelOut]:
     rows = model_registry.list_models(session)
     session.commit()  # the shipped model is registered on first use
     return [model_out(row) for row in rows]
@@ -51,7 +52,7 @@ def start_training(
     session: SessionDep,
     storage: StorageDep,
     celery: CeleryDep,
-    _token: CurrentToken,
+    _token: PlatformAdmin,
 ) -> TrainingOut:
     try:
         training = trainings.start_training(
@@ -79,7 +80,7 @@ def start_training(
     response_model=TrainingOut,
     summary="Where a training run stands (its job's state) and the model it registered",
 )
-def get_training(name: str, run: str, session: SessionDep, _token: CurrentToken) -> TrainingOut:
+def get_training(name: str, run: str, session: SessionDep, _token: SignedIn) -> TrainingOut:
     training = trainings.find_training(session, name, run)
     if training is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no training run {name}/{run}")

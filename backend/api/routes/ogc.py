@@ -10,6 +10,7 @@ clients that follow links (GDAL's paging through `next`) send the header with ea
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 from urllib.parse import urlencode
@@ -17,7 +18,10 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, status
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import CurrentToken, SessionDep, public_base
+from backend.api.access import SignedIn
+from backend.api.deps import SessionDep, public_base
+from backend.db.access import visible_site_ids
+from backend.db.models import ApiToken
 from backend.ids import RowId, parse_row_id
 from backend.services.features import (
     COLLECTIONS,
@@ -177,7 +181,7 @@ def items_query(
 
 
 @router.get("", summary="Landing page", include_in_schema=True)
-def landing_page(request: Request, _token: CurrentToken) -> JSONResponse:
+def landing_page(request: Request, _token: SignedIn) -> JSONResponse:
     links = Links(request)
     return _json(
         {
@@ -201,12 +205,20 @@ def landing_page(request: Request, _token: CurrentToken) -> JSONResponse:
 
 
 @router.get("/conformance", summary="Conformance classes")
-def conformance(_token: CurrentToken) -> JSONResponse:
+def conformance(_token: SignedIn) -> JSONResponse:
     return _json({"conformsTo": CONFORMANCE})
 
 
-def _collection_body(session: SessionDep, links: Links, collection: Collection) -> dict[str, Any]:
-    bbox, interval = collection_extent(session, collection.id)
+def _visible(session: SessionDep, token: ApiToken) -> frozenset[int] | None:
+    """The sites whose features the token may see (every route here shows only those)."""
+    seen = visible_site_ids(session, token)
+    return None if seen is None else frozenset(seen)
+
+
+def _collection_body(
+    session: SessionDep, links: Links, collection: Collection, visible: frozenset[int] | None
+) -> dict[str, Any]:
+    bbox, interval = collection_extent(session, collection.id, visible)
     extent: dict[str, Any] = {
         "spatial": {"bbox": [list(bbox) if bbox else [-180.0, -90.0, 180.0, 90.0]], "crs": CRS84}
     }
@@ -231,21 +243,27 @@ def _collection_body(session: SessionDep, links: Links, collection: Collection) 
 
 
 @router.get("/collections", summary="Feature collections")
-def collections(request: Request, session: SessionDep, _token: CurrentToken) -> JSONResponse:
+def collections(request: Request, session: SessionDep, token: SignedIn) -> JSONResponse:
     links = Links(request)
     return _json(
         {
             "links": [links.link("/ogc/collections", "self", "application/json")],
-            "collections": [_collection_body(session, links, c) for c in COLLECTIONS.values()],
+            "collections": [
+                _collection_body(session, links, c, _visible(session, token))
+                for c in COLLECTIONS.values()
+            ],
         }
     )
 
 
 @router.get("/collections/{collection_id}", summary="A feature collection")
 def collection(
-    collection_id: str, request: Request, session: SessionDep, _token: CurrentToken
+    collection_id: str, request: Request, session: SessionDep, token: SignedIn
 ) -> JSONResponse:
-    return _json(_collection_body(session, Links(request), _collection(collection_id)))
+    body = _collection_body(
+        session, Links(request), _collection(collection_id), _visible(session, token)
+    )
+    return _json(body)
 
 
 @router.get(
@@ -257,10 +275,11 @@ def items(
     collection_id: str,
     request: Request,
     session: SessionDep,
-    _token: CurrentToken,
+    token: SignedIn,
     query: Annotated[FeatureQuery, Depends(items_query)],
 ) -> JSONResponse:
     _collection(collection_id)
+    query = replace(query, visible=_visible(session, token))
     features, matched = query_features(session, collection_id, query)
     links = Links(request)
     path = f"/ogc/collections/{collection_id}/items"
@@ -318,11 +337,11 @@ def item(
     feature_id: str,
     request: Request,
     session: SessionDep,
-    _token: CurrentToken,
+    token: SignedIn,
 ) -> JSONResponse:
     _collection(collection_id)
     feature = (
-        get_feature(session, collection_id, row_id)
+        get_feature(session, collection_id, row_id, _visible(session, token))
         if (row_id := parse_row_id(feature_id))
         else None
     )

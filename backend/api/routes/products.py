@@ -1,7 +1,8 @@
 from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse
 
-from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.access import SiteViewer
+from backend.api.deps import SessionDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut
 from backend.api.serializers import product_out
 from backend.db.models import Product, Site
@@ -15,7 +16,7 @@ def product_of_site(session: SessionDep, site: Site, product_id: RowId) -> Produ
 
 
 @router.get("/{product_id}", response_model=ProductOut)
-def get_product(product_id: RowId, site: SiteDep, session: SessionDep) -> ProductOut:
+def get_product(product_id: RowId, site: SiteViewer, session: SessionDep) -> ProductOut:
     return product_out(product_of_site(session, site, product_id))
 
 
@@ -25,7 +26,7 @@ def get_product(product_id: RowId, site: SiteDep, session: SessionDep) -> Produc
     response_class=FileResponse,
 )
 def download_product(
-    product_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    product_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     product = product_of_site(session, site, product_id)
     path = storage.absolute(product.file.path)

@@ -8,7 +8,8 @@ from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 
-from backend.api.deps import CeleryDep, SessionDep, SiteDep, StorageDep, owned_by_site
+from backend.api.access import SiteAnalyst, SiteViewer
+from backend.api.deps import CeleryDep, SessionDep, StorageDep, owned_by_site
 from backend.api.schemas_monitoring import ReportCreate, ReportOut
 from backend.db.models import Report, StoredFile
 from backend.ids import RowId
@@ -40,7 +41,7 @@ def report_out(report: Report) -> ReportOut:
 
 @router.post("", response_model=ReportOut, status_code=status.HTTP_202_ACCEPTED)
 def create_report(
-    body: ReportCreate, site: SiteDep, session: SessionDep, celery: CeleryDep
+    body: ReportCreate, site: SiteAnalyst, session: SessionDep, celery: CeleryDep
 ) -> ReportOut:
     """Queue a report of a comparison (default: the site's latest); answers at once."""
     try:
@@ -52,13 +53,13 @@ def create_report(
 
 
 @router.get("", response_model=list[ReportOut])
-def list_reports(site: SiteDep, session: SessionDep) -> list[ReportOut]:
+def list_reports(site: SiteViewer, session: SessionDep) -> list[ReportOut]:
     query = select(Report).where(Report.site_id == site.id).order_by(Report.id.desc())
     return [report_out(r) for r in session.scalars(query)]
 
 
 @router.get("/{report_id}", response_model=ReportOut)
-def get_report(report_id: RowId, site: SiteDep, session: SessionDep) -> ReportOut:
+def get_report(report_id: RowId, site: SiteViewer, session: SessionDep) -> ReportOut:
     return report_out(owned_by_site(session, Report, site, report_id, "report"))
 
 
@@ -80,7 +81,7 @@ def _download(
 
 @router.get("/{report_id}/pdf", response_class=FileResponse, summary="The report as PDF")
 def report_pdf(
-    report_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    report_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     report = owned_by_site(session, Report, site, report_id, "report")
     return _download(session, storage, report, report.pdf_file_id, "pdf")
@@ -88,7 +89,7 @@ def report_pdf(
 
 @router.get("/{report_id}/html", response_class=FileResponse, summary="The report as HTML")
 def report_html(
-    report_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    report_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> FileResponse:
     report = owned_by_site(session, Report, site, report_id, "report")
     return _download(session, storage, report, report.html_file_id, "html")

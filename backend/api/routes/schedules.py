@@ -3,10 +3,12 @@
 from fastapi import APIRouter, HTTPException, Response, status
 from sqlalchemy import select
 
-from backend.api.deps import SessionDep, SiteDep, owned_by_site
+from backend.api.access import SignedIn, SiteManager, SiteViewer
+from backend.api.deps import SessionDep, owned_by_site
 from backend.api.schemas_monitoring import ScheduleCreate, ScheduleOut, ScheduleUpdate
 from backend.db.models import Schedule
 from backend.ids import RowId
+from backend.services.audit import record
 from backend.services.schedules import ScheduleRejected, check, next_run, utcnow
 
 router = APIRouter(prefix="/sites/{site_id}/schedules", tags=["schedules"])
@@ -31,7 +33,9 @@ def _first_run(body_next_run_at, cron: str, timezone: str):
 
 
 @router.post("", response_model=ScheduleOut, status_code=status.HTTP_201_CREATED)
-def create_schedule(body: ScheduleCreate, site: SiteDep, session: SessionDep) -> Schedule:
+def create_schedule(
+    body: ScheduleCreate, site: SiteManager, session: SessionDep, token: SignedIn
+) -> Schedule:
     """Beat runs it: each run makes a report of the site's latest comparison."""
     _checked(body.cron, body.timezone)
     schedule = Schedule(
@@ -43,24 +47,31 @@ def create_schedule(body: ScheduleCreate, site: SiteDep, session: SessionDep) ->
         next_run_at=_first_run(body.next_run_at, body.cron, body.timezone),
     )
     session.add(schedule)
+    session.flush()
+    record(session, token, "schedule.create", site=site, target=f"schedule {schedule.id}",
+           details={"cron": schedule.cron, "timezone": schedule.timezone})  # fmt: skip
     session.commit()
     return schedule
 
 
 @router.get("", response_model=list[ScheduleOut])
-def list_schedules(site: SiteDep, session: SessionDep) -> list[Schedule]:
+def list_schedules(site: SiteViewer, session: SessionDep) -> list[Schedule]:
     query = select(Schedule).where(Schedule.site_id == site.id).order_by(Schedule.id)
     return list(session.scalars(query))
 
 
 @router.get("/{schedule_id}", response_model=ScheduleOut)
-def get_schedule(schedule_id: RowId, site: SiteDep, session: SessionDep) -> Schedule:
+def get_schedule(schedule_id: RowId, site: SiteViewer, session: SessionDep) -> Schedule:
     return owned_by_site(session, Schedule, site, schedule_id, "schedule")
 
 
 @router.patch("/{schedule_id}", response_model=ScheduleOut)
 def update_schedule(
-    schedule_id: RowId, body: ScheduleUpdate, site: SiteDep, session: SessionDep
+    schedule_id: RowId,
+    body: ScheduleUpdate,
+    site: SiteManager,
+    session: SessionDep,
+    token: SignedIn,
 ) -> Schedule:
     """A new cron or time zone moves the next run to the next time it names."""
     schedule = owned_by_site(session, Schedule, site, schedule_id, "schedule")
@@ -74,13 +85,20 @@ def update_schedule(
     if "cron" in changes or "timezone" in changes or changes.get("next_run_at"):
         schedule.cron, schedule.timezone = cron, timezone
         schedule.next_run_at = _first_run(changes.get("next_run_at"), cron, timezone)
+    record(session, token, "schedule.update", site=site, target=f"schedule {schedule.id}",
+           details={k: str(v) for k, v in changes.items()})  # fmt: skip
     session.commit()
     return schedule
 
 
 @router.delete("/{schedule_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_schedule(schedule_id: RowId, site: SiteDep, session: SessionDep) -> Response:
+def delete_schedule(
+    schedule_id: RowId, site: SiteManager, session: SessionDep, token: SignedIn
+) -> Response:
     """Delete the schedule; its reports stay."""
-    session.delete(owned_by_site(session, Schedule, site, schedule_id, "schedule"))
+    schedule = owned_by_site(session, Schedule, site, schedule_id, "schedule")
+    record(session, token, "schedule.delete", site=site, target=f"schedule {schedule.id}",
+           details={"cron": schedule.cron})  # fmt: skip
+    session.delete(schedule)
     session.commit()
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -5,14 +5,9 @@ from collections.abc import Callable
 from fastapi import APIRouter, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 
-from backend.api.deps import (
-    CurrentToken,
-    SessionDep,
-    SiteDep,
-    StorageDep,
-    owned_by_site,
-    public_base,
-)
+from backend.api.access import SignedIn, SiteViewer
+from backend.api.deps import SessionDep, StorageDep, owned_by_site, public_base
+from backend.db.access import visible_site_ids
 from backend.db.models import Comparison, JobState, Survey
 from backend.ids import RowId
 from backend.services import stac
@@ -27,12 +22,15 @@ def _href(request: Request) -> Callable[[str], str]:
 
 
 @router.get("/catalog.json", summary="The root STAC catalog: one collection per site")
-def catalog(request: Request, session: SessionDep, _token: CurrentToken) -> JSONResponse:
-    return JSONResponse(stac.root_catalog(session, _href(request)))
+def catalog(request: Request, session: SessionDep, token: SignedIn) -> JSONResponse:
+    """Only the sites this token may see."""
+    return JSONResponse(
+        stac.root_catalog(session, _href(request), visible_site_ids(session, token))
+    )
 
 
 @router.get("/sites/{site_id}/collection.json", summary="The STAC collection of a site")
-def site_collection(request: Request, site: SiteDep, session: SessionDep) -> JSONResponse:
+def site_collection(request: Request, site: SiteViewer, session: SessionDep) -> JSONResponse:
     return JSONResponse(stac.site_collection(session, site, _href(request)))
 
 
@@ -42,7 +40,7 @@ def site_collection(request: Request, site: SiteDep, session: SessionDep) -> JSO
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def survey_item(
-    survey_id: RowId, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, request: Request, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> JSONResponse:
     survey = owned_by_site(session, Survey, site, survey_id, "survey")
     body = stac.survey_item(session, storage, survey, _href(request))
@@ -55,7 +53,11 @@ def survey_item(
     responses={200: {"content": {"application/geo+json": {}}}},
 )
 def comparison_item(
-    comparison_id: RowId, request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+    comparison_id: RowId,
+    request: Request,
+    site: SiteViewer,
+    session: SessionDep,
+    storage: StorageDep,
 ) -> JSONResponse:
     comparison = owned_by_site(session, Comparison, site, comparison_id, "comparison")
     if comparison.status != JobState.succeeded:

@@ -13,8 +13,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 
+from backend.api.access import SiteAnalyst, SiteViewer
 from backend.api.body_limits import streamed_upload
-from backend.api.deps import CeleryDep, SessionDep, SettingsDep, SiteDep, StorageDep
+from backend.api.deps import CeleryDep, SessionDep, SettingsDep, StorageDep
 from backend.api.routes.surveys import survey_of_site
 from backend.api.schemas import JobOut, SourceSurveyCreate, SurveyFileOut, SurveyOut
 from backend.api.serializers import job_out
@@ -37,7 +38,7 @@ router = APIRouter(prefix="/sites/{site_id}/surveys", tags=["surveys from video 
 
 
 @router.post("/sources", response_model=SurveyOut, status_code=status.HTTP_201_CREATED)
-def create_source(body: SourceSurveyCreate, site: SiteDep, session: SessionDep) -> Survey:
+def create_source(body: SourceSurveyCreate, site: SiteAnalyst, session: SessionDep) -> Survey:
     """A survey to be reconstructed from a video with its flight log, or from photos.
 
     Add its files with PUT `.../files/{name}`, then POST `.../process`.
@@ -77,7 +78,7 @@ async def put_file(
     request: Request,
     survey_id: RowId,
     filename: str,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
     storage: StorageDep,
     settings: SettingsDep,
@@ -110,13 +111,13 @@ async def put_file(
 
 
 @router.get("/{survey_id}/files", response_model=list[SurveyFileOut])
-def list_files(survey_id: RowId, site: SiteDep, session: SessionDep) -> list[SurveyFile]:
+def list_files(survey_id: RowId, site: SiteViewer, session: SessionDep) -> list[SurveyFile]:
     return list(survey_of_site(session, site, survey_id).files)
 
 
 @router.delete("/{survey_id}/files/{file_id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_file(
-    survey_id: RowId, file_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, file_id: RowId, site: SiteAnalyst, session: SessionDep, storage: StorageDep
 ) -> Response:
     survey = survey_of_site(session, site, survey_id)
     try:
@@ -131,7 +132,7 @@ def delete_file(
 @router.post("/{survey_id}/process", response_model=JobOut, status_code=status.HTTP_202_ACCEPTED)
 def process(
     survey_id: RowId,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
     storage: StorageDep,
     celery: CeleryDep,

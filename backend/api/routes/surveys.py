@@ -4,13 +4,15 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from sqlalchemy import select
 
+from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
 from backend.api.body_limits import streamed_upload
-from backend.api.deps import SessionDep, SettingsDep, SiteDep, StorageDep, owned_by_site
+from backend.api.deps import SessionDep, SettingsDep, StorageDep, owned_by_site
 from backend.api.schemas import ProductOut, SurveyOut
 from backend.api.serializers import product_out, survey_out
 from backend.db.models import Site, Survey
 from backend.ids import RowId
 from backend.raster_limits import RasterLimits
+from backend.services.audit import record
 from backend.services.deletion import StillInUse, delete_survey
 from backend.services.surveys import create_dsm_survey
 from backend.storage import UploadTooLarge
@@ -24,7 +26,7 @@ def survey_of_site(session: SessionDep, site: Site, survey_id: RowId) -> Survey:
 
 
 @router.get("", response_model=list[SurveyOut])
-def list_surveys(site: SiteDep, session: SessionDep, storage: StorageDep) -> list[SurveyOut]:
+def list_surveys(site: SiteViewer, session: SessionDep, storage: StorageDep) -> list[SurveyOut]:
     query = select(Survey).where(Survey.site_id == site.id).order_by(Survey.captured_at, Survey.id)
     return [survey_out(s, storage) for s in session.scalars(query)]
 
@@ -48,7 +50,7 @@ def list_surveys(site: SiteDep, session: SessionDep, storage: StorageDep) -> lis
 @streamed_upload
 async def upload_dsm_survey(
     request: Request,
-    site: SiteDep,
+    site: SiteAnalyst,
     session: SessionDep,
     storage: StorageDep,
     settings: SettingsDep,
@@ -93,22 +95,25 @@ async def upload_dsm_survey(
 
 @router.get("/{survey_id}", response_model=SurveyOut)
 def get_survey(
-    survey_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> SurveyOut:
     return survey_out(survey_of_site(session, site, survey_id), storage)
 
 
 @router.get("/{survey_id}/products", response_model=list[ProductOut])
-def list_survey_products(survey_id: RowId, site: SiteDep, session: SessionDep) -> list[ProductOut]:
+def list_survey_products(
+    survey_id: RowId, site: SiteViewer, session: SessionDep
+) -> list[ProductOut]:
     survey = survey_of_site(session, site, survey_id)
     return [product_out(p) for p in survey.products]
 
 
 @router.delete("/{survey_id}", status_code=status.HTTP_204_NO_CONTENT)
 def remove_survey(
-    survey_id: RowId, site: SiteDep, session: SessionDep, storage: StorageDep
+    survey_id: RowId, site: SiteManager, session: SessionDep, storage: StorageDep, token: SignedIn
 ) -> Response:
     survey = survey_of_site(session, site, survey_id)
+    record(session, token, "survey.delete", site=site, target=f"survey {survey.id} ({survey.name})")
     try:
         delete_survey(session, storage, survey)
     except StillInUse as exc:

@@ -20,7 +20,8 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import SessionDep, SiteDep, StorageDep, owned_by_site, public_base
+from backend.api.access import SiteViewer
+from backend.api.deps import SessionDep, StorageDep, owned_by_site, public_base
 from backend.db.models import Comparison, JobState, Product, Site, Survey
 from backend.ids import RowId
 from backend.services.tiles import (
@@ -71,7 +72,7 @@ def _product_path(
 def _layer_source(
     site: Site, owner: str, owner_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
-    """The path dependency: our ids (and the token, through SiteDep) to a file we own."""
+    """The path dependency: our ids (and the token, through SiteViewer) to a file we own."""
     layers = LAYERS[owner]
     if layer not in layers:
         raise HTTPException(
@@ -96,13 +97,13 @@ def _layer_source(
 
 
 def survey_layer(
-    site: SiteDep, survey_id: RowId, layer: str, session: SessionDep, storage: StorageDep
+    site: SiteViewer, survey_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
     return _layer_source(site, "surveys", survey_id, layer, session, storage)
 
 
 def comparison_layer(
-    site: SiteDep, comparison_id: RowId, layer: str, session: SessionDep, storage: StorageDep
+    site: SiteViewer, comparison_id: RowId, layer: str, session: SessionDep, storage: StorageDep
 ) -> LayerSource:
     return _layer_source(site, "comparisons", comparison_id, layer, session, storage)
 
@@ -279,7 +280,7 @@ WMTS_DOC = {
 
 @router.get("/wmts/WMTSCapabilities.xml", **WMTS_DOC)
 def site_wmts(
-    request: Request, site: SiteDep, session: SessionDep, storage: StorageDep
+    request: Request, site: SiteViewer, session: SessionDep, storage: StorageDep
 ) -> Response:
     """Every layer of every survey and finished comparison of the site."""
     surveys = session.query(Survey).filter(Survey.site_id == site.id).order_by(Survey.id).all()
@@ -314,7 +315,7 @@ def _owner_wmts(
 
 @router.get("/surveys/{survey_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
 def survey_wmts(
-    request: Request, site: SiteDep, survey_id: RowId, session: SessionDep, storage: StorageDep
+    request: Request, site: SiteViewer, survey_id: RowId, session: SessionDep, storage: StorageDep
 ) -> Response:
     """The layers of one survey."""
     return _owner_wmts(request, site, "surveys", survey_id, session, storage)
@@ -322,7 +323,11 @@ def survey_wmts(
 
 @router.get("/comparisons/{comparison_id}/wmts/WMTSCapabilities.xml", **WMTS_DOC)
 def comparison_wmts(
-    request: Request, site: SiteDep, comparison_id: RowId, session: SessionDep, storage: StorageDep
+    request: Request,
+    site: SiteViewer,
+    comparison_id: RowId,
+    session: SessionDep,
+    storage: StorageDep,
 ) -> Response:
     """The layers of one comparison."""
     return _owner_wmts(request, site, "comparisons", comparison_id, session, storage)

@@ -19,11 +19,14 @@ from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from fastapi.responses import JSONResponse
 from starlette.requests import ClientDisconnect
 
+from backend.api.access import SignedIn, UploadAnalyst
 from backend.api.body_limits import streamed_upload
-from backend.api.deps import CurrentToken, SessionDep, SettingsDep, StorageDep
+from backend.api.deps import SessionDep, SettingsDep, StorageDep
 from backend.api.schemas_map import UploadOut
-from backend.db.models import Upload, UploadState
+from backend.db.access import role_on_site
+from backend.db.models import ApiToken, Role, Site, Upload, UploadState
 from backend.db.tokens import as_utc
+from backend.ids import parse_row_id
 from backend.raster_limits import RasterLimits
 from backend.services.survey_sources import uploaded_file_warnings
 from backend.services.uploads import (
@@ -60,15 +63,6 @@ def _check_version(tus_resumable: str | None) -> None:
         )
 
 
-def _upload(session: SessionDep, upload_id: str) -> Upload:
-    upload = session.get(Upload, upload_id) if upload_id.isalnum() else None
-    if upload is None:
-        raise HTTPException(
-            status.HTTP_404_NOT_FOUND, f"upload {upload_id} not found", headers=TUS_HEADERS
-        )
-    return upload
-
-
 def _expires(upload: Upload) -> dict[str, str]:
     if upload.state != UploadState.receiving:
         return {}
@@ -89,10 +83,22 @@ def tus_options(settings: SettingsDep) -> Response:
     )
 
 
+def _may_upload_to(session: SessionDep, token: ApiToken, site_text: str) -> None:
+    """An upload goes to a site the token is an analyst on; one it cannot see does not
+    exist for it (the service says which site is missing, whatever the reason)."""
+    site_id = parse_row_id(site_text.strip())
+    site = session.get(Site, site_id) if site_id is not None else None
+    role = role_on_site(session, token, site) if site is not None else None
+    if site is not None and role is None:
+        raise UploadError(404, f"site {site_text.strip()} does not exist")
+    if role is not None and role.rank < Role.analyst.rank:
+        raise UploadError(403, f"uploading needs the role analyst on site {site_id}")
+
+
 @router.post("", status_code=status.HTTP_201_CREATED, summary="tus: create an upload")
 def create(
     request: Request,
-    token: CurrentToken,
+    token: SignedIn,
     session: SessionDep,
     storage: StorageDep,
     settings: SettingsDep,
@@ -104,12 +110,14 @@ def create(
     if upload_length is None:
         return _error(UploadError(400, "Upload-Length is missing: say how many bytes will come"))
     try:
+        metadata = parse_metadata(upload_metadata)
+        _may_upload_to(session, token, metadata.get("site_id", ""))
         upload = create_upload(
             session,
             storage,
             settings,
             length=upload_length,
-            metadata=parse_metadata(upload_metadata),
+            metadata=metadata,
             author=author_of(token),
         )
     except UploadError as exc:
@@ -123,14 +131,11 @@ def create(
 
 @router.head("/{upload_id}", summary="tus: the offset to resume at")
 def offset(
-    upload_id: str,
-    _token: CurrentToken,
-    session: SessionDep,
+    upload: UploadAnalyst,
     storage: StorageDep,
     tus_resumable: Annotated[str | None, Header()] = None,
 ) -> Response:
     _check_version(tus_resumable)
-    upload = _upload(session, upload_id)
     if upload.state == UploadState.failed:
         return Response(status_code=status.HTTP_410_GONE, headers=TUS_HEADERS)
     return Response(
@@ -159,9 +164,8 @@ def offset(
 )
 @streamed_upload
 async def patch(
-    upload_id: str,
+    upload: UploadAnalyst,
     request: Request,
-    _token: CurrentToken,
     session: SessionDep,
     storage: StorageDep,
     settings: SettingsDep,
@@ -170,7 +174,6 @@ async def patch(
     tus_resumable: Annotated[str | None, Header()] = None,
 ) -> Response:
     _check_version(tus_resumable)
-    upload = _upload(session, upload_id)
     if request.headers.get("content-type") != OFFSET_MEDIA_TYPE:
         return _error(UploadError(415, f"a PATCH must be sent as {OFFSET_MEDIA_TYPE}"))
     if upload_offset is None:
@@ -197,22 +200,18 @@ async def patch(
     "/{upload_id}", status_code=status.HTTP_204_NO_CONTENT, summary="tus: cancel an upload"
 )
 def delete(
-    upload_id: str,
-    _token: CurrentToken,
+    upload: UploadAnalyst,
     session: SessionDep,
     storage: StorageDep,
     tus_resumable: Annotated[str | None, Header()] = None,
 ) -> Response:
     _check_version(tus_resumable)
-    terminate(session, storage, _upload(session, upload_id))
+    terminate(session, storage, upload)
     return Response(status_code=status.HTTP_204_NO_CONTENT, headers=TUS_HEADERS)
 
 
 @router.get("/{upload_id}", response_model=UploadOut, summary="The upload's state as JSON")
-def upload_status(
-    upload_id: str, _token: CurrentToken, session: SessionDep, storage: StorageDep
-) -> UploadOut:
-    upload = _upload(session, upload_id)
+def upload_status(upload: UploadAnalyst, session: SessionDep, storage: StorageDep) -> UploadOut:
     out = UploadOut.model_validate(upload)
     out.offset = current_offset(storage, upload)
     out.warnings = uploaded_file_warnings(session, upload)

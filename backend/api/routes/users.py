@@ -3,10 +3,12 @@
 from fastapi import APIRouter, HTTPException, status
 from sqlalchemy import select
 
-from backend.api.deps import AdminToken, SessionDep
+from backend.api.access import PlatformAdmin
+from backend.api.deps import SessionDep
 from backend.api.schemas_tokens import UserAccountOut
 from backend.db.models import User
 from backend.ids import RowId
+from backend.services.audit import record
 from backend.services.users import disable_user, enable_user
 
 router = APIRouter(prefix="/users", tags=["users"])
@@ -20,7 +22,7 @@ def _user(session: SessionDep, user_id: int) -> User:
 
 
 @router.get("", response_model=list[UserAccountOut], summary="Every user of the map")
-def list_users(_admin: AdminToken, session: SessionDep) -> list[User]:
+def list_users(_admin: PlatformAdmin, session: SessionDep) -> list[User]:
     return list(session.scalars(select(User).order_by(User.id)))
 
 
@@ -29,16 +31,18 @@ def list_users(_admin: AdminToken, session: SessionDep) -> list[User]:
     response_model=UserAccountOut,
     summary="Disable a user: no more sign-in, and every session and token of theirs ends",
 )
-def disable(user_id: RowId, _admin: AdminToken, session: SessionDep) -> User:
+def disable(user_id: RowId, admin: PlatformAdmin, session: SessionDep) -> User:
     user = _user(session, user_id)
     disable_user(session, user)
+    record(session, admin, "user.disable", target=user.username)
     session.commit()
     return user
 
 
 @router.post("/{user_id}/enable", response_model=UserAccountOut, summary="Let a user sign in again")
-def enable(user_id: RowId, _admin: AdminToken, session: SessionDep) -> User:
+def enable(user_id: RowId, admin: PlatformAdmin, session: SessionDep) -> User:
     user = _user(session, user_id)
     enable_user(user)
+    record(session, admin, "user.enable", target=user.username)
     session.commit()
     return user
