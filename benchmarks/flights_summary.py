@@ -3,7 +3,7 @@
 For every figure: median, p90 and worst over the flights that succeeded (worst is the
 largest error, or the smallest completeness / speed); success over all flights (a flight
 fails when the pipeline stops or its DSM cannot be co-registered onto the truth). Each
-target of issue 18 is judged on the statistic it names:
+target is judged on the statistic it names:
 
 - success >= 95 % (every group);
 - RTK logs: DSM NMAD as georeferenced <= 2 px median and <= 3 px p90;
@@ -78,7 +78,7 @@ FIGURES = (
 
 @dataclass(frozen=True)
 class Target:
-    """A bar of the issue on one statistic of one figure, for some groups."""
+    """A target on one statistic of one figure, for some groups."""
 
     figure: str
     stat: str

@@ -54,7 +54,7 @@ class QualityBounds:
     # mean a distorted reconstruction or a wrong log rather than GPS noise.
     max_standalone_residual_m: float = 5.0
     # Below this share of measured cells where two or more cameras overlap, the DSM there
-    # is mostly interpolated, and a change detected there mostly guessed (issue 17's bar).
+    # is mostly interpolated, and a change detected there mostly guessed.
     min_overlap_coverage: float = 0.8
     # The robust photo fit names a few wrong GPS fixes; when more than this share of the
     # photos is wrong the remaining ones are suspect too (bad reception, a wrong log).
