@@ -139,6 +139,10 @@ class SurveyOut(ORMModel):
     created_at: datetime
 
 
+class SurveyUpdate(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+
+
 class SourceSurveyCreate(BaseModel):
     kind: SurveyKind = Field(description="`video` (a video with its flight log) or `images`.")
     name: str = Field(min_length=1, max_length=200)
@@ -185,6 +189,17 @@ class ComparisonCreate(BaseModel):
     parameters: dict[str, Any] = Field(
         default_factory=dict, description="Options of the comparison stages (see docs)."
     )
+    name: str = Field(default="", max_length=200, description="A name to tell it apart.")
+    run_again: bool = Field(
+        default=False,
+        description="Make a new comparison even when one of the same surveys, method and "
+        "parameters exists (not failed). Without it, that one is answered (200, "
+        "`existing` true) and nothing is queued.",
+    )
+
+
+class ComparisonUpdate(BaseModel):
+    name: str = Field(max_length=200, description="Empty: named by its surveys again.")
 
 
 class MethodOut(BaseModel):
@@ -219,6 +234,7 @@ class DetectionOut(BaseModel):
 class ComparisonOut(ORMModel):
     id: int
     site_id: int
+    name: str
     pre_survey_id: int
     post_survey_id: int
     method: str
@@ -247,6 +263,11 @@ class StageRunOut(ORMModel):
     finished_at: datetime | None
     error: str | None
     result: dict[str, Any] | None
+    log: list[str] = Field(
+        default_factory=list,
+        description="What happened while it ran, over all its attempts: one line each, "
+        "'HH:MM:SS LEVEL message' (UTC); the last 200 lines.",
+    )
 
 
 class JobOut(ORMModel):
@@ -266,7 +287,12 @@ class JobOut(ORMModel):
 
 class ComparisonCreated(BaseModel):
     comparison: ComparisonOut
-    job: JobOut
+    job: JobOut | None
+    existing: bool = Field(
+        default=False,
+        description="True when the comparison was made before (same surveys, method and "
+        "parameters) and is answered instead of a new one; `job` is its latest job.",
+    )
 
 
 class TokenCreated(BaseModel):

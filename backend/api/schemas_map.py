@@ -49,7 +49,12 @@ class UploadOut(BaseModel):
     offset: int
     state: UploadState
     error: str | None
-    survey_id: int | None
+    survey_id: int | None = Field(
+        description="The survey the upload made (a DSM), or the survey its file belongs to."
+    )
+    role: str | None = Field(
+        default=None, description="A survey's file: video, log or image; None for a DSM."
+    )
     warnings: list[str] = Field(
         default_factory=list,
         description="A survey's file, once complete: what reading it had to skip or assume "

@@ -252,6 +252,9 @@ class Comparison(Base):
     site_id: Mapped[int] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
     pre_survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"))
     post_survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"))
+    # Given by people to tell comparisons apart; empty until one is given (the page then
+    # names it by its surveys).
+    name: Mapped[str] = mapped_column(String(200), default="", server_default="")
     method: Mapped[str] = mapped_column(String(32))
     parameters: Mapped[dict[str, Any]] = mapped_column(default=dict)
     status: Mapped[JobState] = mapped_column(_enum(JobState, "comparison_status"))
@@ -381,6 +384,9 @@ class StageRun(Base):
     heartbeat_at: Mapped[datetime | None]
     error: Mapped[str | None] = mapped_column(Text)
     result: Mapped[dict[str, Any] | None]
+    # What happened while it ran, one line each ("HH:MM:SS LEVEL message"), over all its
+    # attempts: what the page shows as the stage's log (worker/jobs/runner.py).
+    log: Mapped[list[str]] = mapped_column(JSON, default=list, server_default="[]")
 
     job: Mapped[Job] = relationship(back_populates="stages")
 

@@ -1,10 +1,12 @@
 """Create a comparison of two surveys of one site and queue its job; say how it detects
 and what to bear in mind reading it (a survey that missed its quality bounds)."""
 
+import json
 from typing import Any
 
 from celery import Celery
 from shapely.geometry import shape
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend.db import model_registry
@@ -21,6 +23,35 @@ from worker.pipeline.quality import failed_messages
 
 class ComparisonRejected(ValueError):
     """The request cannot make a valid comparison; the message says why."""
+
+
+class AlreadyCompared(Exception):
+    """The same comparison exists (same surveys, method and parameters, not failed): it is
+    opened rather than made again, unless asked to run again."""
+
+    def __init__(self, comparison: Comparison) -> None:
+        super().__init__(f"comparison {comparison.id} already compares these surveys this way")
+        self.comparison = comparison
+
+
+def _same_comparison(
+    session: Session, site: Site, pre: Survey, post: Survey, method: str, parameters: dict
+) -> Comparison | None:
+    candidates = session.scalars(
+        select(Comparison)
+        .where(
+            Comparison.site_id == site.id,
+            Comparison.pre_survey_id == pre.id,
+            Comparison.post_survey_id == post.id,
+            Comparison.method == method,
+            Comparison.status != JobState.failed,
+        )
+        .order_by(Comparison.id.desc())
+    )
+    # Parameters compared as stored (normalised by ComparisonOptions, then as JSON keeps
+    # them: tuples become lists), not in SQL: JSON equality differs between databases.
+    wanted = json.loads(json.dumps(parameters))
+    return next((c for c in candidates if c.parameters == wanted), None)
 
 
 def list_methods() -> list[dict[str, Any]]:
@@ -127,7 +158,12 @@ def create_comparison(
     post_survey_id: int,
     method: str | None,
     parameters: dict,
+    *,
+    name: str = "",
+    reuse: bool = False,
 ) -> tuple[Comparison, Job]:
+    """Queue a comparison of two ready surveys; with `reuse`, AlreadyCompared names the
+    same comparison made before instead (a failed one is made again)."""
     try:
         chosen = detection_method(method or default_method())
     except InputError as exc:
@@ -149,11 +185,16 @@ def create_comparison(
         raise ComparisonRejected(f"invalid parameters: {exc}") from exc
     if chosen.needs_model:
         options.detection.model = _model_reference(session, options.detection.model)
+    if reuse:
+        same = _same_comparison(session, site, pre, post, method, options.to_dict())
+        if same is not None:
+            raise AlreadyCompared(same)
 
     comparison = Comparison(
         site_id=site.id,
         pre_survey_id=pre.id,
         post_survey_id=post.id,
+        name=name.strip(),
         method=method,
         parameters=options.to_dict(),
         status=JobState.queued,

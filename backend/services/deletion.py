@@ -7,6 +7,7 @@ only after the commit, so a failed delete never leaves rows pointing at missing 
 from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session
 
+from backend.db.arriving_uploads import part_relative_path
 from backend.db.models import (
     Comparison,
     Product,
@@ -15,6 +16,8 @@ from backend.db.models import (
     StoredFile,
     Survey,
     SurveyFile,
+    Upload,
+    UploadState,
 )
 from backend.storage import LocalStorage
 from backend.storage_layout import comparison_folder, site_uploads_folder, survey_folder
@@ -80,8 +83,26 @@ def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> No
     files += _source_files_of(session, Survey.id == survey.id)
     files += _uploads_of(session, Survey.id == survey.id)
     folder = survey_folder(survey.site_id, survey.id)
+    # Its files still arriving go too: nothing could take them any more.
+    unfinished = _unfinished_uploads_of(session, survey)
+    parts = [part_relative_path(u) for u in unfinished]
+    for upload in unfinished:
+        session.delete(upload)
     session.execute(delete(Survey).where(Survey.id == survey.id))
     _remove(session, storage, files, [folder])
+    for part in parts:
+        storage.delete(part)
+
+
+def _unfinished_uploads_of(session: Session, survey: Survey) -> list[Upload]:
+    uploads = session.scalars(
+        select(Upload).where(
+            Upload.site_id == survey.site_id,
+            Upload.purpose == "survey_file",
+            Upload.state != UploadState.complete,
+        )
+    )
+    return [u for u in uploads if (u.details or {}).get("survey_id") == survey.id]
 
 
 def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:

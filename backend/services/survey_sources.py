@@ -13,6 +13,12 @@ A video survey may be submitted while its video is still arriving through a resu
 upload (the log must be there): the job reads the video as it comes, and the upload,
 marked `streamed`, is still handed over to the survey when it completes. Should it fail
 its checks then, the job fails with the upload's reason.
+
+Whether a file is taken depends on the survey alone, never on the order of requests
+(`file_refusal`): a file is taken while processing has not consumed one of its role, so
+an upload that completes just after processing was asked for is never refused. A failed
+survey is fixed by replacing a file (its job then runs again from the first stage) and
+processed again (`submit_reconstruction` retries its failed job).
 """
 
 import json
@@ -31,7 +37,9 @@ from starlette.concurrency import run_in_threadpool
 from backend.db.arriving_uploads import arriving_video
 from backend.db.models import (
     Job,
+    JobState,
     Site,
+    StageState,
     StoredFile,
     Survey,
     SurveyFile,
@@ -42,7 +50,7 @@ from backend.db.models import (
 )
 from backend.storage import LocalStorage, SavedFile
 from backend.storage_layout import survey_files_folder
-from worker.jobs.control import JobKindName, QueueUnavailable, new_job, start_job
+from worker.jobs.control import JobKindName, QueueUnavailable, new_job, retry_job, start_job
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.images import read_image_metadata
 from worker.pipeline.ingest.read_log import read_flight_log
@@ -107,27 +115,46 @@ def check_file_name(name: str, role: str) -> str:
     return name
 
 
-def _check_role(survey: Survey, role: str, name: str, streamed: bool = False) -> None:
-    # A streamed video is the one the job is reading: it is still taken when processing
-    # has started (or failed waiting for it, so that a retry finds it).
-    open_to = (SurveyStatus.receiving, SurveyStatus.processing, SurveyStatus.failed)
-    if survey.status not in (open_to if streamed else open_to[:1]):
-        raise SourceRejected(
-            f"survey {survey.id} is {survey.status.value}; files can only be added before "
-            "processing starts"
-        )
+def file_refusal(survey: Survey, role: str, name: str) -> str | None:
+    """Why the survey cannot take a file of `role` named `name` now, None if it can.
+
+    A survey takes files while it receives them, and afterwards any file that processing
+    has not consumed yet: while processing, the video of a video survey that has none
+    (the job reads it as it arrives, or waits for it); once failed, a file of a role it
+    lacks (the replacement of one deleted to fix it). A ready survey takes none. The
+    answer depends on the survey's rows alone, so two requests racing (an upload
+    completing as processing is asked for) get the same answer in either order.
+    """
     allowed = ROLES_OF_KIND.get(survey.kind, ())
     if role not in allowed:
-        raise SourceRejected(
-            f"a {survey.kind.value} survey takes {' and '.join(allowed)} files, not {role}"
-        )
+        return f"a {survey.kind.value} survey takes {' and '.join(allowed)} files, not {role}"
+    has_role = any(f.role == role for f in survey.files)
+    if survey.status == SurveyStatus.processing:
+        if not (role == "video" and not has_role):
+            return (
+                f"survey {survey.id} is processing and its {role} files were read when "
+                "processing started; wait for it to finish or fail"
+            )
+    elif survey.status == SurveyStatus.failed:
+        if has_role and role != "image":
+            return (
+                f"survey {survey.id} failed and already has its {role}; to replace it, "
+                "delete that file first"
+            )
+    elif survey.status != SurveyStatus.receiving:
+        return f"survey {survey.id} is {survey.status.value}; its files were used to make it"
     for existing in survey.files:
         if existing.name == name:
-            raise SourceRejected(f"survey {survey.id} already has a file named {name!r}")
+            return f"survey {survey.id} already has a file named {name!r}"
         if role in ("video", "log") and existing.role == role:
-            raise SourceRejected(
-                f"survey {survey.id} already has a {role} ({existing.name}); delete it first"
-            )
+            return f"survey {survey.id} already has a {role} ({existing.name}); delete it first"
+    return None
+
+
+def _check_role(survey: Survey, role: str, name: str) -> None:
+    refusal = file_refusal(survey, role, name)
+    if refusal is not None:
+        raise SourceRejected(refusal)
 
 
 def check_source_file(
@@ -264,12 +291,11 @@ def add_survey_file(
     role: str,
     filename: str,
     source: Path,
-    streamed: bool = False,
 ) -> SurveyFile:
-    """Move a complete file (e.g. a finished resumable upload) into the survey; a
-    `streamed` upload (see the module doc) is taken while the survey is processing."""
+    """Move a complete file (e.g. a finished resumable upload) into the survey, if it
+    takes it now (`file_refusal`)."""
     name = check_file_name(filename, role)
-    _check_role(survey, role, name, streamed)
+    _check_role(survey, role, name)
     saved = storage.adopt_file(Path(source), _folder(survey), Path(name).suffix.lower())
     return _record(session, storage, survey, role, name, saved)
 
@@ -294,18 +320,45 @@ async def add_survey_file_from_stream(
 def remove_survey_file(
     session: Session, storage: LocalStorage, survey: Survey, file_id: int
 ) -> None:
+    """Delete a file of a survey still receiving files, or of a failed one (to replace
+    it: its failed job then starts again from its first stage, which reads the files)."""
     survey_file = session.get(SurveyFile, file_id)
     if survey_file is None or survey_file.survey_id != survey.id:
         raise LookupError(f"survey {survey.id} has no file {file_id}")
-    if survey.status != SurveyStatus.receiving:
+    if survey.status not in (SurveyStatus.receiving, SurveyStatus.failed):
         raise SourceRejected(f"survey {survey.id} is {survey.status.value}; its files are in use")
     path = survey_file.file.path
     session.delete(survey_file)
     session.delete(survey_file.file)
     if survey_file.role == "video":
         _recheck_log(storage, survey, None)
+    if survey.status == SurveyStatus.failed:
+        _restart_failed_jobs(session, survey)
     session.commit()
     storage.delete(path)
+
+
+def _failed_job(session: Session, survey: Survey) -> Job | None:
+    return session.scalar(
+        select(Job)
+        .where(
+            Job.survey_id == survey.id,
+            Job.kind == JobKindName.reconstruction,
+            Job.state == JobState.failed,
+        )
+        .order_by(Job.id.desc())
+        .limit(1)
+    )
+
+
+def _restart_failed_jobs(session: Session, survey: Survey) -> None:
+    """The stages a failed job finished read files that are being replaced: all of them
+    run again when it is retried (a retry otherwise keeps finished stages)."""
+    job = _failed_job(session, survey)
+    if job is None:
+        return
+    for run in job.stages:
+        run.state, run.progress, run.result, run.queued_at = StageState.pending, 0.0, None, None
 
 
 def missing_files(survey: Survey, arriving: Upload | None = None) -> str | None:
@@ -356,11 +409,13 @@ def choose_recording(
 
 def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> Job:
     """Queue the job that reconstructs the survey's DSM from its files (the video may
-    still be arriving: see the module doc)."""
-    if survey.status != SurveyStatus.receiving:
+    still be arriving: see the module doc). A failed survey (fixed, or whose cause is
+    gone) is processed again by retrying its failed job: its finished stages are kept
+    unless a file was replaced."""
+    if survey.status not in (SurveyStatus.receiving, SurveyStatus.failed):
         raise SourceRejected(
-            f"survey {survey.id} is {survey.status.value}; only a survey receiving files "
-            "can be submitted (retry a failed job through its job instead)"
+            f"survey {survey.id} is {survey.status.value}; only a survey receiving files, "
+            "or a failed one, can be processed"
         )
     arriving = arriving_video(session, survey)
     missing = missing_files(survey, arriving)
@@ -368,6 +423,10 @@ def submit_reconstruction(celery: Celery, session: Session, survey: Survey) -> J
         raise SourceRejected(missing)
     if arriving is not None and arriving.state == UploadState.receiving:
         arriving.details = {**arriving.details, "streamed": True}
+    failed = _failed_job(session, survey) if survey.status == SurveyStatus.failed else None
+    if failed is not None:
+        retry_job(celery, session, failed)  # sets the survey processing (on_retry)
+        return failed
     survey.status = SurveyStatus.processing
     survey.error = None
     job = new_job(survey.site_id, JobKindName.reconstruction, survey_id=survey.id)

@@ -35,11 +35,16 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.config import Settings
 from backend.db.arriving_uploads import part_path, part_relative_path
-from backend.db.models import Site, Survey, SurveyStatus, Upload, UploadState
+from backend.db.models import Site, Survey, Upload, UploadState
 from backend.db.tokens import as_utc
 from backend.ids import parse_row_id
 from backend.raster_limits import RasterLimits
-from backend.services.survey_sources import SourceRejected, add_survey_file, check_file_name
+from backend.services.survey_sources import (
+    SourceRejected,
+    add_survey_file,
+    check_file_name,
+    file_refusal,
+)
 from backend.services.surveys import create_dsm_survey_from_file
 from backend.storage import LocalStorage, file_digest
 from worker.pipeline.errors import InputError
@@ -161,14 +166,15 @@ def check_upload_request(
         survey = session.get(Survey, survey_id) if survey_id is not None else None
         if survey is None or survey.site_id != details["site_id"]:
             raise UploadError(404, f"survey {survey_text} not found in site {site_text}")
-        if survey.status != SurveyStatus.receiving:
-            raise UploadError(
-                409, f"survey {survey.id} is {survey.status.value}; it takes no more files"
-            )
         try:
             check_file_name(filename, role)
         except InputError as exc:
             raise UploadError(415, str(exc)) from None
+        # The same rule as when the file is handed over (file_refusal): what the survey
+        # takes now, whichever of this upload and a request to process comes first.
+        refusal = file_refusal(survey, role, filename)
+        if refusal is not None:
+            raise UploadError(409, refusal)
         details |= {"survey_id": survey.id, "role": role}
     details["purpose"] = purpose
     return details
@@ -364,7 +370,8 @@ async def _hand_over(
         )
         survey_id = survey.id
     else:
-        survey = session.get(Survey, details["survey_id"])
+        # Read afresh: processing may have been asked for since this request began.
+        survey = session.get(Survey, details["survey_id"], populate_existing=True)
         if survey is None:
             raise InputError(f"survey {details['survey_id']} was deleted during the upload")
         await run_in_threadpool(
@@ -375,7 +382,6 @@ async def _hand_over(
             role=details["role"],
             filename=upload.filename,
             source=path,
-            streamed=bool(details.get("streamed")),
         )
         survey_id = survey.id
     upload.state = UploadState.complete

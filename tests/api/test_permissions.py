@@ -116,6 +116,9 @@ def _families(site: int) -> dict[str, list[tuple[str, str, dict | None]]]:
                                              "captured_at": "2026-06-01T10:00:00Z"}),
             ("POST", f"{s}/comparisons", {}),  # 422 once allowed
             ("POST", f"{s}/reports", {"comparison_id": "x"}),
+            ("PATCH", f"{s}/surveys/999", {"name": "x"}),  # 404 of the survey once allowed
+            ("PATCH", f"{s}/comparisons/999", {"name": "x"}),
+            ("GET", f"{s}/uploads", None),
         ],
         "manage": [
             ("PATCH", s, {"description": "watched weekly"}),

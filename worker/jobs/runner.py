@@ -27,6 +27,55 @@ def utcnow() -> datetime:
     return datetime.now(UTC)
 
 
+# A stage's log (StageRun.log): at most this many lines, each cut to this many characters,
+# so that a chatty library cannot grow a row without bound.
+LOG_LINES = 200
+LOG_LINE_CHARS = 500
+CAPTURED_LOGGERS = ("worker", "backend")
+
+
+def log_line(level: str, message: str) -> str:
+    return f"{utcnow():%H:%M:%S} {level} {message}"[:LOG_LINE_CHARS]
+
+
+def _append_log(run: StageRun, lines: list[str]) -> None:
+    # A new list: the JSON column is saved when it is assigned, not when mutated.
+    run.log = [*(run.log or []), *lines][-LOG_LINES:]
+
+
+class _StageLog(logging.Handler):
+    """What the stage's code logs from this thread while it runs (as far as the process's
+    logging levels let through: the library's warnings at least), for the stage's log."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: list[str] = []
+        self._thread = threading.get_ident()
+        self._loggers = [logging.getLogger(name) for name in CAPTURED_LOGGERS]
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.thread == self._thread and len(self.lines) < LOG_LINES:
+            self.lines.append(log_line(record.levelname, record.getMessage()))
+
+    def __enter__(self) -> "_StageLog":
+        for logger in self._loggers:
+            logger.addHandler(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for logger in self._loggers:
+            logger.removeHandler(self)
+
+
+def _keep_log(context: JobContext, run_id: int, lines: list[str]) -> None:
+    if not lines:
+        return
+    with context.session_scope() as session:
+        run = session.get(StageRun, run_id)
+        if run is not None:
+            _append_log(run, lines)
+
+
 def _stage_run(session: Session, job_id: int, stage: str) -> StageRun | None:
     return session.scalar(
         select(StageRun).where(StageRun.job_id == job_id, StageRun.stage == stage)
@@ -124,16 +173,23 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
             job.state = JobState.running
             job.started_at = now
         kind = job_kind(job.kind, context)
+        _append_log(run, [log_line("INFO", f"attempt {run.attempts + 1} started")])
         inputs: dict[str, Any] = kind.load_inputs(session, job)
         run_id = run.id
 
     started = time.perf_counter()
+    captured = _StageLog()
     try:
-        with _Heartbeat(context, run_id) as heartbeat:
+        with captured, _Heartbeat(context, run_id) as heartbeat:
             result = kind.run_stage(stage, inputs, heartbeat.report)
     except InputError as exc:
+        _keep_log(context, run_id, captured.lines)
         fail_job(context, job_id, stage, str(exc))
         return None
+    except Exception as exc:
+        # The caller retries or fails the stage; what it logged is kept either way.
+        _keep_log(context, run_id, [*captured.lines, log_line("ERROR", f"{exc!r}")])
+        raise
     result = {**result, "wall_seconds": round(time.perf_counter() - started, 3)}
 
     with context.session_scope() as session:
@@ -145,6 +201,8 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
         run.finished_at = utcnow()
         run.result = result
         run.error = None
+        done = log_line("INFO", f"succeeded in {result['wall_seconds']:.1f} s")
+        _append_log(run, [*captured.lines, done])
         following = _following(job, run)
         if following is None:
             job.state = JobState.succeeded
@@ -164,6 +222,7 @@ def record_retry(context: JobContext, job_id: int, stage: str, error: str, delay
             run.state = StageState.pending
             run.error = f"attempt {run.attempts} failed, retrying in {delay_s:.0f} s: {error}"
             run.queued_at = utcnow() + timedelta(seconds=delay_s)
+            _append_log(run, [log_line("WARNING", run.error)])
 
 
 def fail_job(context: JobContext, job_id: int, stage: str, reason: str) -> None:
@@ -175,6 +234,7 @@ def fail_job(context: JobContext, job_id: int, stage: str, reason: str) -> None:
         run.state = StageState.failed
         run.error = reason
         run.finished_at = utcnow()
+        _append_log(run, [log_line("ERROR", f"failed: {reason}")])
         job.state = JobState.failed
         job.error = f"{stage}: {reason}"
         job.finished_at = utcnow()

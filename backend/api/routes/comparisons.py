@@ -4,12 +4,18 @@ from sqlalchemy import select
 
 from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
 from backend.api.deps import CeleryDep, SessionDep, StorageDep, owned_by_site
-from backend.api.schemas import ComparisonCreate, ComparisonCreated, ComparisonOut, ProductOut
+from backend.api.schemas import (
+    ComparisonCreate,
+    ComparisonCreated,
+    ComparisonOut,
+    ComparisonUpdate,
+    ProductOut,
+)
 from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
 from backend.db.models import Comparison, Job, Site
 from backend.ids import RowId
 from backend.services.audit import record
-from backend.services.comparisons import ComparisonRejected, create_comparison
+from backend.services.comparisons import AlreadyCompared, ComparisonRejected, create_comparison
 from backend.services.deletion import delete_comparison
 from worker.jobs.control import QueueUnavailable
 
@@ -26,14 +32,27 @@ def _job_of(session: SessionDep, comparison: Comparison) -> Job | None:
     )
 
 
-@router.post("", response_model=ComparisonCreated, status_code=status.HTTP_202_ACCEPTED)
+@router.post(
+    "",
+    response_model=ComparisonCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={
+        200: {
+            "model": ComparisonCreated,
+            "description": "The same comparison exists (same surveys, method and "
+            "parameters, not failed): it is answered with `existing` true and nothing is "
+            "queued. Send `run_again` true to make a new one anyway.",
+        }
+    },
+)
 def create(
     body: ComparisonCreate,
     site: SiteAnalyst,
     session: SessionDep,
     celery: CeleryDep,
     storage: StorageDep,
-) -> ComparisonCreated:
+    token: SignedIn,
+) -> ComparisonCreated | JSONResponse:
     """Compare two surveys of this site: queues a job and returns at once."""
     try:
         comparison, job = create_comparison(
@@ -44,11 +63,27 @@ def create(
             body.post_survey_id,
             body.method,
             body.parameters,
+            name=body.name,
+            reuse=not body.run_again,
         )
+    except AlreadyCompared as exc:
+        same = exc.comparison
+        latest = _job_of(session, same)
+        answer = ComparisonCreated(
+            comparison=comparison_out(same, latest, storage),
+            job=job_out(latest) if latest else None,
+            existing=True,
+        )
+        return JSONResponse(answer.model_dump(mode="json"), status_code=status.HTTP_200_OK)
     except ComparisonRejected as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     except QueueUnavailable as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
+    record(
+        session, token, "comparison.create", site=site,
+        target=f"comparison {comparison.id}", details={"run_again": body.run_again},
+    )  # fmt: skip
+    session.commit()
     return ComparisonCreated(comparison=comparison_out(comparison, job, storage), job=job_out(job))
 
 
@@ -91,7 +126,30 @@ def list_comparison_products(
     return [product_out(p) for p in comparison.products]
 
 
-@router.delete("/{comparison_id}", status_code=status.HTTP_204_NO_CONTENT)
+@router.patch("/{comparison_id}", response_model=ComparisonOut, summary="Rename a comparison")
+def update_comparison(
+    comparison_id: RowId,
+    body: ComparisonUpdate,
+    site: SiteAnalyst,
+    session: SessionDep,
+    storage: StorageDep,
+    token: SignedIn,
+) -> ComparisonOut:
+    comparison = comparison_of_site(session, site, comparison_id)
+    comparison.name = body.name.strip()
+    record(
+        session, token, "comparison.update", site=site, target=f"comparison {comparison.id}",
+        details={"fields": ["name"]},
+    )  # fmt: skip
+    session.commit()
+    return comparison_out(comparison, _job_of(session, comparison), storage)
+
+
+@router.delete(
+    "/{comparison_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Delete a comparison with its detections, their verdicts, its products and jobs",
+)
 def remove_comparison(
     comparison_id: RowId,
     site: SiteManager,

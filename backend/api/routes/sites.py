@@ -3,13 +3,24 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from backend.api.access import SignedIn, SiteManager, SiteViewer
+from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
 from backend.api.deps import SessionDep, StorageDep
+from backend.api.routes.uploads import upload_out
 from backend.api.schemas import SiteCreate, SiteOut, SiteUpdate
+from backend.api.schemas_map import UploadOut
 from backend.db.access import organisation_ids, role_in_organisation, visible_site_ids
-from backend.db.models import ApiToken, Organisation, Role, Site, default_organisation
+from backend.db.models import (
+    ApiToken,
+    Organisation,
+    Role,
+    Site,
+    Upload,
+    UploadState,
+    default_organisation,
+)
 from backend.services.audit import record
 from backend.services.deletion import delete_site
+from backend.services.uploads import remove_expired
 
 router = APIRouter(prefix="/sites", tags=["sites"])
 
@@ -114,3 +125,23 @@ def remove_site(
     record(session, token, "site.delete", site=site, target=f"site {site.id} ({site.name})")
     delete_site(session, storage, site)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.get(
+    "/{site_id}/uploads",
+    response_model=list[UploadOut],
+    summary="The site's unfinished resumable uploads",
+    description="Uploads still receiving bytes, oldest first, with the offset reached: the "
+    "page lists them on return to resume (choose the same file again) or cancel (DELETE "
+    "/uploads/{id}). They are removed after SLIDEWATCH_UPLOAD_EXPIRY_HOURS.",
+)
+def list_unfinished_uploads(
+    site: SiteAnalyst, session: SessionDep, storage: StorageDep
+) -> list[UploadOut]:
+    remove_expired(session, storage)
+    query = (
+        select(Upload)
+        .where(Upload.site_id == site.id, Upload.state == UploadState.receiving)
+        .order_by(Upload.created_at, Upload.id)
+    )
+    return [upload_out(session, storage, u) for u in session.scalars(query)]

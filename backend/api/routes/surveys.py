@@ -7,7 +7,7 @@ from sqlalchemy import select
 from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
 from backend.api.body_limits import streamed_upload
 from backend.api.deps import SessionDep, SettingsDep, StorageDep, owned_by_site
-from backend.api.schemas import ProductOut, SurveyOut
+from backend.api.schemas import ProductOut, SurveyOut, SurveyUpdate
 from backend.api.serializers import product_out, survey_out
 from backend.db.models import Site, Survey
 from backend.ids import RowId
@@ -108,7 +108,32 @@ def list_survey_products(
     return [product_out(p) for p in survey.products]
 
 
-@router.delete("/{survey_id}", status_code=status.HTTP_204_NO_CONTENT)
+@router.patch("/{survey_id}", response_model=SurveyOut, summary="Rename a survey")
+def update_survey(
+    survey_id: RowId,
+    body: SurveyUpdate,
+    site: SiteAnalyst,
+    session: SessionDep,
+    storage: StorageDep,
+    token: SignedIn,
+) -> SurveyOut:
+    survey = survey_of_site(session, site, survey_id)
+    changes = body.model_dump(exclude_unset=True, exclude_none=True)
+    for field, value in changes.items():
+        setattr(survey, field, value.strip() if isinstance(value, str) else value)
+    record(
+        session, token, "survey.update", site=site, target=f"survey {survey.id}",
+        details={"fields": sorted(changes)},
+    )  # fmt: skip
+    session.commit()
+    return survey_out(survey, storage)
+
+
+@router.delete(
+    "/{survey_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Delete a survey with its files, products and jobs (409 while a comparison uses it)",
+)
 def remove_survey(
     survey_id: RowId, site: SiteManager, session: SessionDep, storage: StorageDep, token: SignedIn
 ) -> Response:

@@ -17,6 +17,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
 from starlette.requests import ClientDisconnect
 
 from backend.api.access import SignedIn, UploadAnalyst
@@ -43,6 +44,7 @@ from backend.services.uploads import (
     terminate,
 )
 from backend.services.users import author_of
+from backend.storage import LocalStorage
 
 router = APIRouter(prefix="/uploads", tags=["resumable uploads (tus)"])
 
@@ -210,9 +212,17 @@ def delete(
     return Response(status_code=status.HTTP_204_NO_CONTENT, headers=TUS_HEADERS)
 
 
-@router.get("/{upload_id}", response_model=UploadOut, summary="The upload's state as JSON")
-def upload_status(upload: UploadAnalyst, session: SessionDep, storage: StorageDep) -> UploadOut:
+def upload_out(session: Session, storage: LocalStorage, upload: Upload) -> UploadOut:
     out = UploadOut.model_validate(upload)
     out.offset = current_offset(storage, upload)
     out.warnings = uploaded_file_warnings(session, upload)
+    details = upload.details or {}
+    if upload.purpose == "survey_file":
+        out.survey_id = out.survey_id or details.get("survey_id")
+        out.role = details.get("role")
     return out
+
+
+@router.get("/{upload_id}", response_model=UploadOut, summary="The upload's state as JSON")
+def upload_status(upload: UploadAnalyst, session: SessionDep, storage: StorageDep) -> UploadOut:
+    return upload_out(session, storage, upload)
