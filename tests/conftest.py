@@ -48,7 +48,8 @@ def simulated_mounds_survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[P
     """A short simulated survey of the paper's mound field: (flight folder, truth folder).
 
     6 s of 640x360 video at 15 fps from 7 m with its DJI SRT and AirData CSV (stand-alone
-    GPS), made once per test session and shared by the reconstruction and API tests.
+    GPS) and the orthoimage it was rendered from, made once per test session and shared by
+    the reconstruction and API tests.
     """
     from worker.simulator.simulate import SimulationOptions, simulate_scenario
 
@@ -58,7 +59,6 @@ def simulated_mounds_survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[P
         video_seconds=6.0,
         fps=15.0,
         registration=False,
-        write_ortho=False,
         workers=1,
         seed=3,
     )

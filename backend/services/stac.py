@@ -34,6 +34,11 @@ COG = pystac.MediaType.COG
 
 ASSET_ROLES = {
     "dsm": (["data"], "DSM (Cloud-Optimized GeoTIFF, metres)"),
+    # STAC's role for a true-colour image a person looks at.
+    "orthophoto": (["visual"], "True orthophoto on the DSM (RGBA Cloud-Optimized GeoTIFF)"),
+    "points": (["data"], "Point cloud the DSM is made of (PLY, UTM)"),
+    "trajectory": (["metadata"], "Flight path (GeoJSON, WGS84)"),
+    "report": (["metadata"], "Reconstruction report: figures, timings, warnings (JSON)"),
     "post_coregistered": (["data"], "Post DSM co-registered onto the pre DSM (COG, metres)"),
     "dh": (["data"], "Δh = post − pre (COG, metres)"),
     "significance": (["data"], "Significant change: 1 loss, 2 gain (COG)"),
@@ -165,7 +170,7 @@ def _add_assets(
         asset = pystac.Asset(
             href=href(api_url("sites", product.site_id, "products", product.id, "file")),
             title=title,
-            media_type=COG if is_raster else pystac.MediaType.GEOJSON,
+            media_type=COG if is_raster else product.file.media_type,
             roles=roles,
             extra_fields={"file:size": product.file.size_bytes},
         )

@@ -94,6 +94,7 @@ def test_video_and_log_become_a_dsm_that_can_be_compared(
         "reconstruct",
         "georeference",
         "dsm",
+        "orthophoto",
     ]
     again = client.post(f"/api/v1/sites/{site_id}/surveys/{sid}/process", headers=auth)
     assert again.status_code == 409 and "processing" in again.json()["detail"]
@@ -109,7 +110,7 @@ def test_video_and_log_become_a_dsm_that_can_be_compared(
         p["kind"]: p
         for p in client.get(f"/api/v1/sites/{site_id}/surveys/{sid}/products", headers=auth).json()
     }
-    assert set(products) == {"dsm", "points", "trajectory", "report"}
+    assert set(products) == {"dsm", "points", "trajectory", "orthophoto", "report"}
     # The report gathers the stages' warnings, the log's skipped block among them; the
     # survey answers its files' and the report's, each once, naming files as uploaded.
     report = json.loads(client.get(products["report"]["download_url"], headers=auth).content)

@@ -27,6 +27,7 @@ from worker.pipeline.reconstruction import (
     ReconstructionOptions,
     dsm,
     reconstruct_survey,
+    write_report,
 )
 from worker.pipeline.sfm import SfmOptions, _stereo_partners
 from worker.pipeline.slam.densify import DensifyOptions
@@ -188,7 +189,7 @@ def test_a_poorly_covered_overlap_is_warned_about_in_the_report(tmp_path):
     write_georeferenced(tmp_path, survey_map(CENTRES, 50.0, ground))
     result = dsm(tmp_path, DSM_OPTIONS)
     assert result.overlap_coverage == pytest.approx(0.25, abs=0.01)
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = write_report(tmp_path)
     # The survey's verdict fails on it and says so among the report's warnings.
     (check,) = [c for c in report["quality"]["checks"] if c["name"] == "overlap_coverage"]
     assert not report["quality"]["passed"] and not check["passed"]

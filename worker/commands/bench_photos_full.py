@@ -222,10 +222,9 @@ def full_seed(
         "resumed_from_stage": started,
         "error": error,
     }
-    out["stage_seconds"] = {
-        s: _read_json(recon / f"{s}.json").get("seconds")
-        for s in ("ingest", "frames", "reconstruct", "georeference", "dsm")
-    }
+    from worker.pipeline.reconstruction import STAGES
+
+    out["stage_seconds"] = {s: _read_json(recon / f"{s}.json").get("seconds") for s in STAGES}
     # From the stages' own results: the same figure whether this run or an earlier one
     # ran them.
     out["stages_seconds"] = sum(v for v in out["stage_seconds"].values() if v is not None)

@@ -47,6 +47,16 @@ def raster_crs(path: Path) -> str | None:
         return src.crs.to_string() if src.crs else None
 
 
+def drop_product(session: Session, survey_id: int, kind: str) -> None:
+    """Forget the survey's product `kind`, if it has one (its file is kept as stored)."""
+    product = session.scalar(
+        select(Product).where(Product.survey_id == survey_id, Product.kind == kind)
+    )
+    if product is not None:
+        session.delete(product)
+        session.flush()
+
+
 def register_product(
     session: Session,
     storage: LocalStorage,

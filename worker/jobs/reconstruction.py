@@ -1,10 +1,11 @@
 """The reconstruction job: a video + flight log, or an image set, to the survey's DSM.
 
 Stages are the library's (worker.pipeline.reconstruction.RECONSTRUCTION_PIPELINE): ingest
--> frames -> reconstruct -> georeference -> dsm, each run over the survey's work folder in
-storage. A stage's files that its spec marks as products become the survey's products:
-`trajectory` (GeoJSON flight path in WGS84) after georeference; `dsm` (COG), `points` (PLY)
-and `report` (timings and residuals) after dsm.
+-> frames -> reconstruct -> georeference -> dsm -> orthophoto, each run over the survey's
+work folder in storage. A stage's files that its spec marks as products become the
+survey's products: `trajectory` (GeoJSON flight path in WGS84) after georeference; `dsm`
+(COG) and `points` (PLY) after dsm; `orthophoto` (RGBA COG, when the imagery could be
+read) and `report` (timings and residuals) after orthophoto.
 
 A video still arriving through a resumable upload is read from the upload's part file
 as it grows (the library waits for its bytes). The frames stage then waits for the
@@ -23,7 +24,7 @@ from backend.db.arriving_uploads import arriving_video, part_path
 from backend.db.models import Job, Survey, SurveyKind, SurveyStatus, UploadState
 from backend.storage_layout import survey_reconstruction_file, survey_reconstruction_folder
 from worker.jobs.kind import JobKindName
-from worker.jobs.products import StorageJob, register_product
+from worker.jobs.products import StorageJob, drop_product, register_product
 from worker.pipeline import reconstruction as pipeline
 from worker.pipeline.dsm_inspect import inspect_dsm
 from worker.pipeline.errors import InputError
@@ -132,13 +133,19 @@ class ReconstructionJob(StorageJob):
     ) -> None:
         survey = self._survey(session, job)
         for output in pipeline.RECONSTRUCTION_PIPELINE.stage(stage).products():
+            relative = survey_reconstruction_file(survey.site_id, survey.id, output.file)
+            if output.optional and not self.storage.absolute(relative).is_file():
+                # Not made this time (the stage's result says why): an earlier run's
+                # product of that kind no longer exists either.
+                drop_product(session, survey.id, output.product or output.file)
+                continue
             register_product(
                 session,
                 self.storage,
                 site_id=survey.site_id,
                 survey_id=survey.id,
                 kind=output.product or output.file,
-                relative=survey_reconstruction_file(survey.site_id, survey.id, output.file),
+                relative=relative,
                 media_type=output.media_type,
             )
         if stage != "dsm":

@@ -29,6 +29,7 @@ COG_MEDIA_TYPE = "image/tiff; application=geotiff; profile=cloud-optimized"
 class RasterRole(StrEnum):
     elevation = "elevation"  # continuous values: DSM, Δh
     mask = "mask"  # classes: significance, stable terrain
+    image = "image"  # colour bands with alpha: the orthophoto
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,8 @@ def write_cog(src_path: Path, dst_path: Path, role: RasterRole | str) -> CogResu
         blockysize=BLOCK_SIZE,
         predictor=3 if floating else 2,
     )
-    resampling = "average" if role == RasterRole.elevation else "nearest"
+    # Colours average into overviews like heights do; classes must not be averaged.
+    resampling = "nearest" if role == RasterRole.mask else "average"
     with atomic_path(Path(dst_path)) as tmp:
         cog_translate(
             str(src_path),

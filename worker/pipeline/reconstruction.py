@@ -1,6 +1,7 @@
-"""A survey from drone video (+ flight log) or an image set to a DSM, in five stages.
+"""A survey from drone video (+ flight log) or an image set to a DSM and an orthophoto,
+in six stages.
 
-    ingest -> frames -> reconstruct -> georeference -> dsm
+    ingest -> frames -> reconstruct -> georeference -> dsm -> orthophoto
 
 The stages are declared once, as data (`RECONSTRUCTION_PIPELINE`, see stages.py): the
 CLI, the job layer and the page's stage help come from there. Each stage is a function
@@ -28,7 +29,9 @@ files back typed. Layout of `work_dir`:
     dsm_filled.tif           dsm           0 measured, 1 filled by inpainting, 255 out
     dsm.png                  dsm           grey-scale export, on request (see dsm_export)
     dsm.json                 dsm           DSM figures
-    report.json              dsm           every stage's figures and timings in one file
+    orthophoto.tif           orthophoto    true orthophoto on the DSM, RGBA COG
+    orthophoto.json          orthophoto    its figures (or why there is none)
+    report.json              orthophoto    every stage's figures and timings in one file
 
 Methods: `slam` (default for video) and `sfm` (pycolmap, the paper's OpenDroneMap
 reference, and the only method for image sets); `auto` picks by input.
@@ -85,6 +88,13 @@ from worker.pipeline.ingest.time_offset import (
     refine_time_offset,
 )
 from worker.pipeline.ingest.video import probe_video
+from worker.pipeline.orthophoto import (
+    OrthophotoOptions,
+    ViewImages,
+    still_view_images,
+    video_view_images,
+    write_orthophoto,
+)
 from worker.pipeline.pointcloud import (
     compact_rows,
     grid_outliers,
@@ -98,6 +108,7 @@ from worker.pipeline.reconstruction_results import (
     FramesResult,
     GeoreferenceResult,
     IngestResult,
+    OrthophotoStageResult,
     ReconstructionStageResult,
     ReconstructResult,
     plain,
@@ -121,6 +132,7 @@ TRAJECTORY = "trajectory.csv"
 TRAJECTORY_GEOJSON = "trajectory.geojson"
 POINTS = "points.ply"
 DSM = "dsm.tif"
+ORTHOPHOTO = "orthophoto.tif"
 REPORT = "report.json"
 
 
@@ -164,6 +176,7 @@ class ReconstructionOptions:
     sfm: SfmOptions = field(default_factory=SfmOptions)
     georef: MapGeorefOptions = field(default_factory=MapGeorefOptions)
     dsm: DsmOptions = field(default_factory=DsmOptions)
+    orthophoto: OrthophotoOptions = field(default_factory=OrthophotoOptions)
     sparse_sor: bool = True  # open3d statistical outlier removal on the sparse cloud
     dense_sor: bool = False  # the same on the dense cloud (slow: 20 s per 2M points)
     dense_grid_k: float = 3.5  # robust per-cell height filter of the dense cloud
@@ -221,6 +234,7 @@ _RESULT_STAGE: dict[type[ReconstructionStageResult], str] = {
     ReconstructResult: "reconstruct",
     GeoreferenceResult: "georeference",
     DsmStageResult: "dsm",
+    OrthophotoStageResult: "orthophoto",
 }
 
 
@@ -667,9 +681,80 @@ def dsm(
     out["seconds"] = round(time.perf_counter() - start, 3)
     result = DsmStageResult(**out)
     _write_result(work_dir, result)
+    progress(1.0)
+    return result
+
+
+def orthophoto(
+    work_dir: Path,
+    options: ReconstructionOptions | None = None,
+    progress: ProgressFn = no_progress,
+    inputs: ReconstructionInputs | None = None,
+) -> OrthophotoStageResult:
+    """The true orthophoto on the DSM (orthophoto.py), then report.json. A survey whose
+    imagery cannot be read again keeps its DSM: the stage says why there is no
+    orthophoto, in its warnings and the report, and does not fail the survey."""
+    start = time.perf_counter()
+    options = options or ReconstructionOptions()
+    work_dir = Path(work_dir)
+    out: dict[str, Any] = {"warnings": []}
+    (work_dir / ORTHOPHOTO).unlink(missing_ok=True)  # a rerun never shows an older one
+    if not options.orthophoto.enabled:
+        out["warnings"].append("no orthophoto: it was turned off in the survey's options")
+    else:
+        ing = _read_result(work_dir, IngestResult)
+        sparse = SparseMap.load(work_dir / GEOREF_MAP)
+        try:
+            source = _view_images(work_dir, ing, sparse, options, inputs)
+            made = write_orthophoto(
+                work_dir,
+                sparse,
+                work_dir / DSM,
+                source,
+                work_dir / ORTHOPHOTO,
+                options.orthophoto,
+                Intrinsics.from_dict(ing.intrinsics).dist,
+                progress,
+            )
+        except InputError as exc:
+            out["warnings"].append(f"no orthophoto: {exc}")
+        else:
+            out["orthophoto"] = made.to_dict()
+            out["warnings"] += made.warnings
+    out["seconds"] = round(time.perf_counter() - start, 3)
+    result = OrthophotoStageResult(**out)
+    _write_result(work_dir, result)
     write_report(work_dir)
     progress(1.0)
     return result
+
+
+def _view_images(
+    work_dir: Path,
+    ing: IngestResult,
+    sparse: SparseMap,
+    options: ReconstructionOptions,
+    inputs: ReconstructionInputs | None,
+) -> ViewImages:
+    """Where the keyframes' colours come from: the images the map was made of (sfm's
+    stills, a photo set), or the survey's video at keyframe times (slam)."""
+    fr = _read_result(work_dir, FramesResult)
+    if ing.method == "sfm" or ing.image_set:
+        if fr.stills is not None and fr.still_times is not None:
+            paths = sorted(str(p) for p in (work_dir / STILLS_DIR).glob("*.jpg"))
+            return still_view_images(paths, fr.still_times, sparse)
+        if ing.image_set:
+            image_set = read_image_set(ing.image_set)
+            paths = [m.path for m in image_set.images]
+            return still_view_images(paths, image_set.image_times.tolist(), sparse)
+        raise InputError("the frames stage wrote no stills to colour the orthophoto from")
+    video = inputs.paths()["video"] if inputs and inputs.video else ing.inputs["video"]
+    if video is None or not Path(video).is_file():
+        raise InputError("the survey's video is no longer where ingest read it")
+    scan = read_frame_scan(work_dir / FRAMES_DIR / "frames.csv")
+    return video_view_images(
+        Path(video), sparse, scan.t, scan.sharpness, options.orthophoto.colour_scale
+    )
 
 
 def _dense_point_spacing(sparse: SparseMap, gsd: float, options: ReconstructionOptions) -> float:
@@ -805,10 +890,21 @@ RECONSTRUCTION_PIPELINE: Pipeline[ReconstructionContext] = Pipeline(
             outputs=(
                 Output(DSM, "dsm", COG_MEDIA_TYPE),
                 Output(POINTS, "points", "application/vnd.ply"),
-                Output(REPORT, "report", "application/json"),
                 Output("dsm.json"),
             ),
             weight=0.15,
+        ),
+        StageSpec(
+            name="orthophoto",
+            run=lambda c, p: orthophoto(c.work_dir, c.options, p, c.inputs),
+            help="orthophoto from the frames",
+            inputs=("ingest.json", "frames.json", GEOREF_MAP, DSM),
+            outputs=(
+                Output(ORTHOPHOTO, "orthophoto", COG_MEDIA_TYPE, optional=True),
+                Output(REPORT, "report", "application/json"),
+                Output("orthophoto.json"),
+            ),
+            weight=0.06,
         ),
     ),
 )

@@ -147,3 +147,14 @@ class DsmStageResult(ReconstructionStageResult):
     overlap_area_m2: float | None = field(default=None, metadata=_OPTIONAL)
     overlap_coverage: float | None = field(default=None, metadata=_OPTIONAL)
     seconds: float
+
+
+@dataclass(kw_only=True)
+class OrthophotoStageResult(ReconstructionStageResult):
+    """The orthophoto stage's figures (its `orthophoto` is orthophoto.OrthophotoResult's
+    dict; absent when no orthophoto was made, with the reason among the warnings)."""
+
+    orthophoto: dict[str, Any] | None = None
+    warnings: list[str] = field(default_factory=list)
+    seconds: float
+

@@ -82,13 +82,16 @@ class Output:
 
     `product` names the product kind it becomes (None: a working file only). A raster with
     a `raster_role` is served as a Cloud-Optimized GeoTIFF made from it, whose overviews are
-    resampled by that role; one already written as a COG says so in its media type.
+    resampled by that role; one already written as a COG says so in its media type. An
+    `optional` output may be missing after its stage ran (the stage's result says why),
+    and is then no product.
     """
 
     file: str
     product: str | None = None
     media_type: str = "application/octet-stream"
     raster_role: RasterRole | None = None
+    optional: bool = False
 
 
 @dataclass(frozen=True)

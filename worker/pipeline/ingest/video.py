@@ -18,7 +18,7 @@ waits for bytes that have not arrived yet instead of ending (see `arriving.py`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
@@ -172,8 +172,11 @@ class VideoReader:
         start_s: float = 0.0,
         end_s: float | None = None,
         threads: int = 2,
+        wanted: Callable[[float], bool] | None = None,
     ) -> Iterator[VideoFrame]:
-        """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h)."""
+        """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h);
+        with `wanted`, only the frames whose time it accepts (the others are decoded,
+        as they must be, but not converted)."""
         name = self.path.name
         index = -1
         with _opened(self.path, self.arrival) as container:
@@ -213,6 +216,8 @@ class VideoReader:
                     continue
                 if end_s is not None and t >= end_s:
                     break
+                if wanted is not None and not wanted(t):
+                    continue
                 if gray:
                     image = _gray(frame, width, height)
                 else:
