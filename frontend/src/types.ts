@@ -85,6 +85,8 @@ export interface StageRun {
   finished_at: string | null;
   error: string | null;
   result: Record<string, unknown> | null;
+  /** What happened while it ran, over all its attempts: "HH:MM:SS LEVEL message" (UTC). */
+  log: string[];
 }
 
 export interface Job {
@@ -105,6 +107,8 @@ export interface Job {
 export interface Comparison {
   id: number;
   site_id: number;
+  /** Given by people; empty: the page names it by its surveys. */
+  name: string;
   pre_survey_id: number;
   post_survey_id: number;
   method: string;
@@ -203,7 +207,24 @@ export interface WhoAmI {
 
 export interface ComparisonCreatedOut {
   comparison: Comparison;
-  job: Job;
+  job: Job | null;
+  /** The same comparison was made before: it is answered, nothing new is queued. */
+  existing: boolean;
+}
+
+/** A resumable upload as GET /sites/{id}/uploads lists the unfinished ones. */
+export interface UnfinishedUpload {
+  id: string;
+  site_id: number;
+  purpose: "dsm" | "survey_file";
+  filename: string;
+  length: number;
+  offset: number;
+  state: "receiving" | "complete" | "failed";
+  survey_id: number | null;
+  role: "video" | "log" | "image" | null;
+  created_by: string;
+  created_at: string;
 }
 
 /** An API token as GET /auth/tokens lists it (its secret is never listed). */

@@ -65,6 +65,72 @@ export function reasonOf(error: Error): string {
   return navigator.onLine === false ? "the connection is down" : error.message.split(", originalRequest")[0];
 }
 
+const TUS_HEADERS = { "Tus-Resumable": "1.0.0" };
+
+/** The tus `Upload-Metadata` header: `key base64(value)` pairs, values as UTF-8. */
+export function encodeMetadata(values: Record<string, string>): string {
+  const base64 = (text: string) => btoa(String.fromCharCode(...new TextEncoder().encode(text)));
+  return Object.entries(values)
+    .map(([key, value]) => `${key} ${base64(value)}`)
+    .join(",");
+}
+
+function createdKey(file: File, metadata: Record<string, string>): string {
+  return `slidewatch.upload.${fingerprintOf(file)}.${metadata.survey_id ?? "dsm"}.${metadata.role ?? ""}`;
+}
+
+/** Make the server's upload of `file` (sending `body`) before any byte goes, or find the
+ * one made before for it (a reload, a second try); its URL. A survey's files are all
+ * created first, so that processing is asked for only once the server knows each one. */
+export async function createUpload(
+  file: File,
+  metadata: Record<string, string>,
+  body: Blob = file,
+  onHashing?: (fraction: number) => void,
+): Promise<string> {
+  const key = createdKey(file, metadata);
+  const known = localStorage.getItem(key);
+  if (known) {
+    const head = await fetch(known, { method: "HEAD", headers: { ...authHeaders(), ...TUS_HEADERS } }).catch(() => null);
+    if (head?.ok) return known;
+    localStorage.removeItem(key);
+  }
+  const digest = await fileSha256(file, onHashing, body);
+  const headers = {
+    ...authHeaders(),
+    ...TUS_HEADERS,
+    "Upload-Length": String(body.size),
+    "Upload-Metadata": encodeMetadata({ ...metadata, filename: file.name, sha256: digest }),
+  };
+  // A slow or flaky connection may lose the request: tried again, as tus retries PATCHes.
+  for (let attempt = 0; ; attempt++) {
+    const response = await fetch("/api/v1/uploads", { method: "POST", headers }).catch(() => null);
+    if (response?.status === 201) {
+      const url = response.headers.get("Location") ?? "";
+      localStorage.setItem(key, url);
+      return url;
+    }
+    if (response && response.status < 500) {
+      throw new Error(`${file.name} was not accepted: ${errorMessage(await response.json().catch(() => null), response.status)}.`);
+    }
+    if (attempt >= RETRY_DELAYS_MS.length - 1) throw new Error(`${file.name}: the server cannot be reached.`);
+    await new Promise((r) => setTimeout(r, RETRY_DELAYS_MS[attempt + 1]));
+  }
+}
+
+/** Forget the upload made for `file` (it completed, or was cancelled). */
+export function forgetUpload(file: File, metadata: Record<string, string>): void {
+  localStorage.removeItem(createdKey(file, metadata));
+}
+
+/** Cancel an upload on the server: its bytes are deleted. */
+export async function cancelUpload(url: string): Promise<void> {
+  const response = await fetch(url, { method: "DELETE", headers: { ...authHeaders(), ...TUS_HEADERS } });
+  if (!response.ok && response.status !== 404) {
+    throw new Error(errorMessage(await response.json().catch(() => null), response.status));
+  }
+}
+
 export interface RunningUpload {
   pause(): Promise<void>;
   resume(): void;
@@ -79,15 +145,18 @@ export async function startUpload(
   chunkSize: number,
   callbacks: UploadCallbacks,
   body: Blob = file,
+  uploadUrl: string | null = null,
 ): Promise<RunningUpload> {
   const digest = await fileSha256(file, callbacks.onHashing, body);
   const upload = new tus.Upload(body, {
     endpoint: "/api/v1/uploads",
+    // An upload made already (createUpload): its bytes go there, from where it stopped.
+    uploadUrl,
     chunkSize,
     retryDelays: RETRY_DELAYS_MS,
     metadata: { ...metadata, filename: file.name, sha256: digest },
     fingerprint: async () => fingerprintOf(file),
-    storeFingerprintForResuming: true,
+    storeFingerprintForResuming: uploadUrl === null,
     removeFingerprintOnSuccess: true,
     onBeforeRequest: (request) => {
       for (const [name, value] of Object.entries(authHeaders())) request.setHeader(name, value);
@@ -103,8 +172,12 @@ export async function startUpload(
     onSuccess: () => callbacks.onSuccess(upload.url ?? ""),
     onError: (error) => callbacks.onError(reasonOf(error)),
   });
-  const previous = await upload.findPreviousUploads();
-  if (previous.length) {
+  const previous = uploadUrl ? [] : await upload.findPreviousUploads();
+  if (uploadUrl) {
+    const head = await fetch(uploadUrl, { method: "HEAD", headers: { ...authHeaders(), ...TUS_HEADERS } }).catch(() => null);
+    const offset = Number(head?.headers.get("Upload-Offset") ?? 0);
+    if (head?.ok && offset > 0) callbacks.onResuming?.(offset, body.size);
+  } else if (previous.length) {
     upload.resumeFromPreviousUpload(previous[0]);
     const url = previous[0].uploadUrl;
     if (url) {

@@ -1,5 +1,6 @@
 // Processing jobs of the site with their stages, live through Server-Sent Events; a failed
-// job shows why and can be retried.
+// job shows why and can be retried. The latest jobs first, the whole history on demand,
+// each with its stages' logs (what happened in each attempt, as the worker kept it).
 
 import { ApiError, authHeaders, postJson } from "../api";
 import { escapeHtml, formatDateTime, formatPercent } from "../format";
@@ -15,9 +16,23 @@ export function jobTitle(job: Job): string {
   return `${job.kind} job`;
 }
 
+const RECENT = 8;
+
+function stageLogsHtml(job: Job, open: boolean): string {
+  const stages = job.stages
+    .filter((s) => s.log?.length)
+    .map((s) => `<h4>${escapeHtml(s.stage)}</h4><pre class="stage-log">${escapeHtml(s.log.join("\n"))}</pre>`)
+    .join("");
+  if (!stages) return "";
+  return `<details class="job-log" data-log="${job.id}"${open ? " open" : ""}><summary>Stage logs of job ${job.id}</summary>${stages}</details>`;
+}
+
 export class JobsPanel {
   private jobs = new Map<number, Job>();
   private streams = new Map<number, AbortController>();
+  private showAll = false;
+  /** Logs left open stay open when the job's next event redraws the panel. */
+  private openLogs = new Set<number>();
 
   constructor(
     private readonly box: HTMLElement,
@@ -28,7 +43,21 @@ export class JobsPanel {
     box.addEventListener("click", (event) => {
       const button = (event.target as HTMLElement).closest<HTMLButtonElement>("button[data-retry]");
       if (button) void this.retry(Number(button.dataset.retry), button);
+      if ((event.target as HTMLElement).closest("button[data-all-jobs]")) {
+        this.showAll = !this.showAll;
+        this.render();
+      }
     });
+    box.addEventListener(
+      "toggle",
+      (event) => {
+        const details = event.target as HTMLDetailsElement;
+        if (!details.dataset?.log) return;
+        if (details.open) this.openLogs.add(Number(details.dataset.log));
+        else this.openLogs.delete(Number(details.dataset.log));
+      },
+      true, // toggle does not bubble
+    );
   }
 
   show(jobs: Job[]): void {
@@ -70,7 +99,8 @@ export class JobsPanel {
   }
 
   private render(): void {
-    const jobs = [...this.jobs.values()].sort((a, b) => b.id - a.id).slice(0, 8);
+    const all = [...this.jobs.values()].sort((a, b) => b.id - a.id);
+    const jobs = this.showAll ? all : all.slice(0, RECENT);
     if (!jobs.length) {
       this.box.innerHTML = `<p class="muted">Nothing is processing.</p>`;
       return;
@@ -91,11 +121,15 @@ export class JobsPanel {
           <h3>${escapeHtml(jobTitle(job))} <span class="job-state">${job.state}</span> <span class="muted">${formatPercent(job.progress)}</span></h3>
           <p class="muted">queued ${formatDateTime(job.created_at, this.timeZone)}${job.finished_at ? `, finished ${formatDateTime(job.finished_at, this.timeZone)}` : ""}</p>
           <ol class="stages">${stages}</ol>
+          ${stageLogsHtml(job, this.openLogs.has(job.id))}
           ${failed ? `<p class="error" role="alert">Failed: ${escapeHtml(job.error ?? "no reason given")}</p>
             <button type="button" data-retry="${job.id}">Retry job ${job.id}</button><p class="error retry-error"></p>` : ""}
         </article>`;
       })
-      .join("");
+      .join("") +
+      (all.length > RECENT
+        ? `<button type="button" data-all-jobs>${this.showAll ? `Show the latest ${RECENT} jobs` : `Show all ${all.length} jobs (history)`}</button>`
+        : "");
   }
 
   close(): void {

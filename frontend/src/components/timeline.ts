@@ -39,6 +39,11 @@ export function renderTimeline(surveys: Survey[], timeZone: string): string {
         <span class="what">${s.kind === "dsm" ? "DSM" : s.kind === "video" ? "video + log" : "photos"} ·
           <span class="status">${STATUS_WORDS[s.status]}</span>${s.resolution_m ? ` · ${formatMetres(s.resolution_m)} pixels` : ""}</span>
         ${s.error ? `<span class="error">${escapeHtml(s.error)}</span>` : ""}
+        <span class="row-actions">
+          <button type="button" data-rename-survey="${s.id}">Rename survey ${escapeHtml(s.name)}</button>
+          ${s.status === "failed" && s.kind !== "dsm" ? `<button type="button" data-fix-survey="${s.id}">Replace files of ${escapeHtml(s.name)}</button>` : ""}
+          <button type="button" data-delete-survey="${s.id}">Delete survey ${escapeHtml(s.name)}</button>
+        </span>
         ${surveyQualityHtml(s.quality)}
         ${surveyWarningsHtml(s.warnings)}
       </li>`,

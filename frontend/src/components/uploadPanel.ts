@@ -1,11 +1,11 @@
 // Upload a survey: a DSM GeoTIFF, a video with its flight log, or a set of photos. Files go
 // up resumably (tus); checked in plain words before they go and by the server after.
 
-import { ApiError, getJson, postJson } from "../api";
+import { api, getJson, postJson } from "../api";
 import { escapeHtml, formatBytes, formatPercent, toZonedWallTime, zonedWallTimeToUtc } from "../format";
 import { faststart } from "../faststart";
-import type { Job, MapConfig, Site, Survey, SurveyFile } from "../types";
-import { type RunningUpload, startUpload } from "../upload";
+import type { Job, MapConfig, Site, Survey, SurveyFile, UnfinishedUpload } from "../types";
+import { cancelUpload, createUpload, forgetUpload, type RunningUpload, startUpload } from "../upload";
 import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey } from "../validation";
 import { fileWarningsHtml } from "../warnings";
 
@@ -17,10 +17,20 @@ interface UploadStatus {
   survey_id: number | null;
 }
 
+const ROLE_WORDS: Record<string, string> = { video: "video", log: "flight log", image: "photo" };
+
+/** Asks before the page is left while files are going up (the browser's own dialog). */
+function holdPage(event: BeforeUnloadEvent): void {
+  event.preventDefault();
+  event.returnValue = ""; // older Chromium asks only when this is set
+}
+
 export class UploadPanel {
   private running: RunningUpload | null = null;
   private paused = false;
   private cancelled: ((error: Error) => void) | null = null;
+  /** A failed survey whose files the next upload replaces (see fixSurvey). */
+  private fixing: Survey | null = null;
 
   constructor(
     private readonly box: HTMLElement,
@@ -73,7 +83,13 @@ export class UploadPanel {
         <p id="upload-status" role="status" aria-live="polite"></p>
         <div id="upload-warnings" aria-live="polite"></div>
         <ul id="upload-errors" class="error" role="alert"></ul>
-      </form>`;
+      </form>
+      <section id="unfinished" aria-labelledby="unfinished-title" hidden>
+        <h3 id="unfinished-title">Unfinished uploads</h3>
+        <p class="muted">Choose the same file again to resume where it stopped, or cancel it.</p>
+        <ul id="unfinished-list" class="unfinished"></ul>
+        <p id="unfinished-error" class="error" role="alert"></p>
+      </section>`;
     const form = this.$("#upload-form") as HTMLFormElement;
     form.addEventListener("change", (event) => {
       if ((event.target as HTMLInputElement).name === "kind") this.showKind();
@@ -84,6 +100,110 @@ export class UploadPanel {
     });
     this.$("#upload-pause").addEventListener("click", () => void this.togglePause());
     this.$("#upload-cancel").addEventListener("click", () => void this.cancel());
+    const list = this.$("#unfinished-list");
+    list.addEventListener("change", (event) => {
+      const input = event.target as HTMLInputElement;
+      const upload = this.unfinished.find((u) => u.id === input.dataset.resume);
+      const file = input.files?.[0];
+      if (upload && file) void this.resumeUnfinished(upload, file);
+    });
+    list.addEventListener("click", (event) => {
+      const button = (event.target as HTMLElement).closest<HTMLButtonElement>("button[data-cancel-upload]");
+      const upload = this.unfinished.find((u) => u.id === button?.dataset.cancelUpload);
+      if (upload) void this.cancelUnfinished(upload);
+    });
+    void this.loadUnfinished();
+  }
+
+  private unfinished: UnfinishedUpload[] = [];
+
+  /** The site's uploads that stopped before their last byte (a reload, a closed laptop),
+   * each to resume by choosing its file again, or to cancel. */
+  async loadUnfinished(): Promise<void> {
+    try {
+      this.unfinished = await getJson<UnfinishedUpload[]>(`sites/${this.site.id}/uploads`);
+    } catch {
+      this.unfinished = []; // a viewer may not upload: nothing to resume
+    }
+    const shown = this.unfinished;
+    this.$("#unfinished").hidden = shown.length === 0;
+    this.$("#unfinished-list").innerHTML = shown
+      .map((u) => {
+        const what = u.survey_id && u.role ? `${ROLE_WORDS[u.role]} of survey ${u.survey_id}` : "DSM";
+        return `<li data-upload-id="${escapeHtml(u.id)}"><span>${escapeHtml(u.filename)} (${what}):
+          ${formatBytes(u.offset)} of ${formatBytes(u.length)} sent</span>
+          <label>Resume ${escapeHtml(u.filename)} <input type="file" data-resume="${escapeHtml(u.id)}"></label>
+          <button type="button" data-cancel-upload="${escapeHtml(u.id)}">Cancel ${escapeHtml(u.filename)}</button></li>`;
+      })
+      .join("");
+  }
+
+  private async resumeUnfinished(upload: UnfinishedUpload, file: File): Promise<void> {
+    this.$("#unfinished-error").textContent = "";
+    // A video goes up with its index first: the same bytes as when it was started.
+    const body = upload.role === "video" ? await faststart(file) : file;
+    if (file.name !== upload.filename || body.size !== upload.length) {
+      this.$("#unfinished-error").textContent =
+        `That is not the file of this upload: choose ${upload.filename} (${formatBytes(upload.length)}).`;
+      return;
+    }
+    this.busy(true);
+    try {
+      const url = `/api/v1/uploads/${upload.id}`;
+      const done = await this.sendFile(file, {}, file.name, body, url);
+      if (upload.purpose === "dsm") {
+        this.status(`${file.name} is now survey ${done.survey_id}, ready to compare.`);
+        if (done.survey_id) this.onSurvey(done.survey_id);
+      } else if (upload.survey_id) {
+        await this.processIfComplete(upload.survey_id);
+      }
+    } catch (e) {
+      this.errors([e instanceof Error ? e.message : String(e)]);
+    } finally {
+      this.running = null;
+      this.busy(false);
+      await this.loadUnfinished();
+    }
+  }
+
+  /** After a resumed file: the survey is processed if it has all it needs and is not yet
+   * (the server says what is missing otherwise). */
+  private async processIfComplete(surveyId: number): Promise<void> {
+    const survey = await getJson<Survey>(`sites/${this.site.id}/surveys/${surveyId}`);
+    this.onSurvey(surveyId);
+    if (survey.status !== "receiving" && survey.status !== "failed") {
+      this.status(`All files are up; survey ${surveyId} is ${survey.status}.`);
+      return;
+    }
+    try {
+      this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${surveyId}/process`, {}));
+      this.status(`All files are up; survey ${surveyId} is being reconstructed.`);
+    } catch (e) {
+      this.status(`The file is up. Survey ${surveyId} is not processed yet: ${e instanceof Error ? e.message : e}`);
+    }
+  }
+
+  private async cancelUnfinished(upload: UnfinishedUpload): Promise<void> {
+    const sent = `${formatBytes(upload.offset)} of ${formatBytes(upload.length)}`;
+    if (!window.confirm(`Cancel the upload of ${upload.filename}? The ${sent} already sent are deleted.`)) return;
+    try {
+      await cancelUpload(`/api/v1/uploads/${upload.id}`);
+    } catch (e) {
+      this.$("#unfinished-error").textContent = e instanceof Error ? e.message : String(e);
+    }
+    await this.loadUnfinished();
+  }
+
+  /** Fix a failed survey: the files chosen next replace its files of the same role, and
+   * it is processed again (its failed job runs again from its first stage). */
+  fixSurvey(survey: Survey): void {
+    this.fixing = survey;
+    const radio = this.box.querySelector<HTMLInputElement>(`input[name=kind][value="${survey.kind}"]`);
+    if (radio) radio.checked = true;
+    this.showKind();
+    (this.$("#survey-name") as HTMLInputElement).value = survey.name;
+    this.status(`Fixing survey ${survey.id} (${survey.name}): choose the files that replace its own, then Upload.`);
+    this.box.scrollIntoView({ block: "nearest" });
   }
 
   private kind(): Kind {
@@ -108,6 +228,8 @@ export class UploadPanel {
   }
 
   private busy(on: boolean): void {
+    if (on) window.addEventListener("beforeunload", holdPage);
+    else window.removeEventListener("beforeunload", holdPage);
     (this.$("#upload-start") as HTMLButtonElement).disabled = on;
     (this.$("#upload-pause") as HTMLButtonElement).disabled = !on;
     (this.$("#upload-cancel") as HTMLButtonElement).disabled = !on;
@@ -154,17 +276,18 @@ export class UploadPanel {
     } finally {
       this.running = null;
       this.busy(false);
+      void this.loadUnfinished();
     }
   }
 
-  /** One file up, resolved when the server has checked and taken it. `onCreated` runs
-   * once the server knows the upload; `body` is what is sent for the file. */
+  /** One file up, resolved when the server has checked and taken it. `body` is what is
+   * sent for the file; `uploadUrl`, the upload made for it already (createUpload). */
   private sendFile(
     file: File,
     metadata: Record<string, string>,
     label: string,
-    onCreated?: () => Promise<void>,
     body: Blob = file,
+    uploadUrl: string | null = null,
   ): Promise<UploadStatus> {
     const progress = this.$("#upload-progress") as HTMLProgressElement;
     progress.hidden = false;
@@ -172,7 +295,6 @@ export class UploadPanel {
       this.cancelled = reject;
       startUpload(file, metadata, this.config.upload_chunk_bytes, {
         onHashing: (f) => this.status(`Checking ${label} before sending: ${formatPercent(f)}`),
-        onCreated: () => void onCreated?.().catch(reject),
         onResuming: (offset, total) =>
           this.status(`Resuming ${label}: ${formatBytes(offset)} of ${formatBytes(total)} were already sent.`),
         onProgress: (sent, total) => {
@@ -183,13 +305,13 @@ export class UploadPanel {
         onSuccess: async (url) => {
           this.status(`Checking ${label} on the server…`);
           try {
-            resolve(await this.settled(url));
+            resolve(await this.settled(url || uploadUrl || ""));
           } catch (e) {
             reject(e);
           }
         },
         onError: (reason) => reject(new Error(`${label} was not uploaded: ${reason}.`)),
-      }, body)
+      }, body, uploadUrl)
         .then((running) => (this.running = running))
         .catch(reject);
     });
@@ -215,10 +337,12 @@ export class UploadPanel {
     if (done.survey_id) this.onSurvey(done.survey_id);
   }
 
-  /** A video + log or photo survey: the survey first, then its files (those not yet
-   * there, so that a reload resumes), then the reconstruction job. A video survey is
-   * processed while its video uploads: the log goes first, the video is sent with its
-   * index first, and the job is queued as soon as the server knows the video's upload. */
+  /** A video + log or photo survey: the survey first (or the failed survey being fixed),
+   * then the server's upload of every file not yet there, made before anything is sent
+   * or processed, so that processing never races the creation of an upload. Then the
+   * files go up, the log first; a video survey is processed as soon as its log is in
+   * (the server reads the video as it arrives: it is sent with its index first), a photo
+   * survey once all photos are in. A reload resumes all of it. */
   private async uploadSource(kind: "video" | "images", name: string, capturedAt: string): Promise<void> {
     const files =
       kind === "video"
@@ -228,9 +352,9 @@ export class UploadPanel {
           ]
         : this.files("image-files").map((file) => ({ file, role: "image" }));
     const key = `slidewatch.source.${this.site.id}.${files.map((f) => `${f.file.name}-${f.file.size}`).join("+")}`;
-    let survey: Survey | null = null;
+    let survey: Survey | null = this.fixing;
     const known = localStorage.getItem(key);
-    if (known) {
+    if (!survey && known) {
       survey = await getJson<Survey>(`sites/${this.site.id}/surveys/${known}`).catch(() => null);
       // A survey processed while its video uploads is "processing" (or "failed", if the
       // upload stalled): its video upload resumes too.
@@ -246,43 +370,58 @@ export class UploadPanel {
     this.onSurvey(survey.id);
     const id = survey.id;
     const listFiles = () => getJson<SurveyFile[]>(`sites/${this.site.id}/surveys/${id}/files`);
-    const already = await listFiles();
+    let already = await listFiles();
+    if (this.fixing) {
+      // Fixing: the survey's video or log gives way to the one chosen now (even of the
+      // same name: a corrected file); photos chosen are added to its own.
+      for (const old of already.filter((f) => f.role !== "image" && files.some((c) => c.role === f.role))) {
+        await api<void>(`sites/${this.site.id}/surveys/${id}/files/${old.id}`, { method: "DELETE" });
+      }
+      already = await listFiles();
+    }
     this.fileWarnings(already);
     const present = new Set(already.map((f) => f.name));
-    let submitted = survey.status !== "receiving";
+    const sending = [];
+    for (const [i, { file, role }] of files.entries()) {
+      if (present.has(file.name)) continue;
+      const metadata = { site_id: String(this.site.id), purpose: "survey_file", survey_id: String(id), role };
+      if (role === "video") this.status(`Preparing ${file.name} so that it is processed while it uploads…`);
+      const body = role === "video" ? await faststart(file) : file;
+      const url = await createUpload(file, metadata, body, (f) => this.status(`Checking ${file.name} before sending: ${formatPercent(f)}`));
+      sending.push({ file, role, body, url, metadata, label: `${file.name} (${i + 1} of ${files.length})` });
+    }
+    let submitted = survey.status === "processing";
     const submit = async (): Promise<void> => {
       if (submitted) return;
       submitted = true;
-      try {
-        this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${id}/process`, {}));
-      } catch (e) {
-        throw new Error(e instanceof ApiError ? e.message : String(e));
-      }
+      this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${id}/process`, {}));
     };
-    for (const [i, { file, role }] of files.entries()) {
-      if (present.has(file.name)) continue;
-      const label = `${file.name} (${i + 1} of ${files.length})`;
-      const metadata = { site_id: String(this.site.id), purpose: "survey_file", survey_id: String(id), role };
-      if (role === "video") {
-        this.status(`Preparing ${file.name} so that it is processed while it uploads…`);
-        await this.sendFile(file, metadata, label, submit, await faststart(file));
-      } else {
-        await this.sendFile(file, metadata, label);
-      }
+    for (const item of sending.filter((f) => f.role !== "video")) {
+      await this.sendFile(item.file, item.metadata, item.label, item.body, item.url);
+      forgetUpload(item.file, item.metadata);
+      this.fileWarnings(await listFiles());
+    }
+    // Every upload exists on the server and the log is in: the video may be read as it comes.
+    if (kind === "video") await submit();
+    for (const item of sending.filter((f) => f.role === "video")) {
+      await this.sendFile(item.file, item.metadata, item.label, item.body, item.url);
+      forgetUpload(item.file, item.metadata);
       this.fileWarnings(await listFiles());
     }
     await submit();
-    if (survey.status === "failed") await this.retryReconstruction(id);
+    // A survey whose job failed while its video was arriving (the upload stalled): now
+    // that the video is whole, it is processed again from the failed stage.
+    if (survey.status === "failed" && !this.fixing) await this.retryReconstruction(id);
+    this.fixing = null;
     localStorage.removeItem(key);
     this.status(`All files are up; survey ${id} is being reconstructed.`);
+    void this.loadUnfinished();
   }
 
-  /** A survey whose job failed while its video was arriving (the upload stalled): now that
-   * the video is whole, its job runs again from the failed stage. */
   private async retryReconstruction(surveyId: number): Promise<void> {
-    const jobs = await getJson<Job[]>(`sites/${this.site.id}/jobs`);
-    const failed = jobs.find((j) => j.kind === "reconstruction" && j.survey_id === surveyId && j.state === "failed");
-    if (failed) this.onJob(await postJson<Job>(`sites/${this.site.id}/jobs/${failed.id}/retry`, {}));
+    const current = await getJson<Survey>(`sites/${this.site.id}/surveys/${surveyId}`);
+    if (current.status !== "failed") return;
+    this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${surveyId}/process`, {}));
   }
 
   private async togglePause(): Promise<void> {

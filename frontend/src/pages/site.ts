@@ -1,6 +1,6 @@
 // A site's page: its surveys on a timeline, comparisons, processing, uploads, and the map.
 
-import { ApiError, authHeaders, getJson, postJson } from "../api";
+import { ApiError, api, authHeaders, getJson, postJson } from "../api";
 import { JobsPanel } from "../components/jobs";
 import { renderTimeline } from "../components/timeline";
 import { UploadPanel } from "../components/uploadPanel";
@@ -32,7 +32,16 @@ function comparisonLabel(c: Comparison, surveys: Survey[], timeZone: string): st
     const s = surveys.find((x) => x.id === id);
     return s ? `${s.name} (${formatDate(s.captured_at, timeZone)})` : `survey ${id}`;
   };
-  return `${name(c.pre_survey_id)} → ${name(c.post_survey_id)}`;
+  const pair = `${name(c.pre_survey_id)} → ${name(c.post_survey_id)}`;
+  return c.name ? `${c.name}: ${pair}` : pair;
+}
+
+const plural = (n: number, one: string, many: string) => `${n} ${n === 1 ? one : many}`;
+
+/** A rename asked for in the browser's own prompt; null when cancelled or unchanged. */
+function askName(what: string, current: string): string | null {
+  const name = window.prompt(`New name of ${what}:`, current)?.trim();
+  return name && name !== current ? name : null;
 }
 
 export async function renderSite(app: HTMLElement, siteId: number, config: MapConfig): Promise<() => void> {
@@ -42,6 +51,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       <aside class="sidebar" aria-label="Site">
         <h1>${escapeHtml(site.name)}</h1>
         <p class="muted">Times in ${escapeHtml(site.timezone)}. ${escapeHtml(site.description)}</p>
+        <p class="row-actions"><button type="button" id="rename-site">Rename site</button>
+          <button type="button" id="delete-site">Delete site</button></p>
+        <p class="error" role="alert" id="manage-error"></p>
         <section aria-labelledby="surveys-title"><h2 id="surveys-title">Surveys</h2><div id="surveys"></div></section>
         <section aria-labelledby="compare-title"><h2 id="compare-title">Compare two surveys</h2>
           <form id="compare-form" class="compare">
@@ -50,7 +62,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
             <label for="method">Detection method</label>
             <select id="method" aria-describedby="method-summary"></select>
             <p class="muted method-summary" id="method-summary"></p>
+            <label class="check"><input type="checkbox" id="run-again"> Run again even if these surveys were compared this way</label>
             <button type="submit">Compare</button>
+            <p class="muted" role="status" id="compare-status"></p>
             <p class="error" role="alert" id="compare-error"></p>
           </form>
         </section>
@@ -101,7 +115,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
               <span>${escapeHtml(comparisonLabel(c, state.surveys, site.timezone))}</span>
               <span class="muted">${escapeHtml(c.method)} · <span class="comparison-status">${c.status}</span> · ${summary}</span>
               ${how ? `<span class="muted comparison-detection">${escapeHtml(how)}</span>` : ""}
-              ${comparisonWarningsHtml(c.warnings)}</li>`;
+              ${comparisonWarningsHtml(c.warnings)}
+              <span class="row-actions"><button type="button" data-rename-comparison="${c.id}">Rename comparison ${c.id}</button>
+                <button type="button" data-delete-comparison="${c.id}">Delete comparison ${c.id}</button></span></li>`;
           })
           .join("")
       : `<li class="muted">No comparison yet.</li>`;
@@ -125,8 +141,11 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   async function show(comparison: Comparison | null): Promise<void> {
     state.shown = comparison;
     renderComparisons();
-    const pre = state.surveys.find((s) => s.id === comparison?.pre_survey_id) ?? state.surveys.at(-2) ?? null;
-    const post = state.surveys.find((s) => s.id === comparison?.post_survey_id) ?? state.surveys.at(-1) ?? null;
+    // Without a comparison, the newest two ready DSMs: a survey that failed or is still
+    // processing has none, and must not take the place of the site's ready one.
+    const ready = state.surveys.filter((s) => s.status === "ready");
+    const pre = state.surveys.find((s) => s.id === comparison?.pre_survey_id) ?? ready.at(-2) ?? null;
+    const post = state.surveys.find((s) => s.id === comparison?.post_survey_id) ?? ready.at(-1) ?? null;
     const features = await map.showPair({ pre, post, comparison });
     renderDetections(features);
   }
@@ -169,7 +188,94 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     const button = (event.target as HTMLElement).closest<HTMLButtonElement>("button[data-show]");
     const comparison = state.comparisons.find((c) => c.id === Number(button?.dataset.show));
     if (comparison) void show(comparison);
+    const target = event.target as HTMLElement;
+    const renamed = state.comparisons.find((c) => c.id === Number(target.closest<HTMLElement>("[data-rename-comparison]")?.dataset.renameComparison));
+    if (renamed) void manage(() => renameComparison(renamed));
+    const deleted = state.comparisons.find((c) => c.id === Number(target.closest<HTMLElement>("[data-delete-comparison]")?.dataset.deleteComparison));
+    if (deleted) void manage(() => deleteComparison(deleted));
   });
+  $("surveys").addEventListener("click", (event) => {
+    const target = event.target as HTMLElement;
+    const of = (attribute: string) =>
+      state.surveys.find((s) => s.id === Number(target.closest<HTMLElement>(`[data-${attribute}]`)?.getAttribute(`data-${attribute}`)));
+    const renamed = of("rename-survey");
+    if (renamed) void manage(() => renameSurvey(renamed));
+    const deleted = of("delete-survey");
+    if (deleted) void manage(() => deleteSurvey(deleted));
+    const fixed = of("fix-survey");
+    if (fixed) uploads.fixSurvey(fixed);
+  });
+  $("rename-site").addEventListener("click", () => void manage(renameSite));
+  $("delete-site").addEventListener("click", () => void manage(deleteSite));
+
+  /** Run a management action; its refusal (a role too small, a survey still in use) is said. */
+  async function manage(action: () => Promise<void>): Promise<void> {
+    $("manage-error").textContent = "";
+    try {
+      await action();
+    } catch (e) {
+      $("manage-error").textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+    }
+  }
+
+  async function renameSite(): Promise<void> {
+    const name = askName(`site "${site.name}"`, site.name);
+    if (!name) return;
+    await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ name }) });
+    window.location.reload();
+  }
+
+  async function deleteSite(): Promise<void> {
+    const detections = state.comparisons.reduce((n, c) => n + (c.summary?.detections ?? 0), 0);
+    const what =
+      `Delete the site "${site.name}" with everything in it: ${plural(state.surveys.length, "survey", "surveys")}, ` +
+      `${plural(state.comparisons.length, "comparison", "comparisons")} with ${plural(detections, "detection", "detections")} and their verdicts, ` +
+      `every job, report, schedule, alert setting and file of the site? This cannot be undone.`;
+    if (!window.confirm(what)) return;
+    await api(`sites/${siteId}`, { method: "DELETE" });
+    window.location.hash = "#/";
+  }
+
+  async function renameSurvey(survey: Survey): Promise<void> {
+    const name = askName(`survey "${survey.name}"`, survey.name);
+    if (!name) return;
+    await api(`sites/${siteId}/surveys/${survey.id}`, { method: "PATCH", body: JSON.stringify({ name }) });
+    await loadSurveys();
+    renderComparisons();
+  }
+
+  async function deleteSurvey(survey: Survey): Promise<void> {
+    const using = state.comparisons.filter((c) => c.pre_survey_id === survey.id || c.post_survey_id === survey.id);
+    const files = survey.kind === "dsm" ? "its DSM" : "its uploaded files, unfinished uploads";
+    const also = using.length
+      ? ` and the ${plural(using.length, "comparison", "comparisons")} made with it (${using.map((c) => c.id).join(", ")}) with their detections`
+      : "";
+    if (!window.confirm(`Delete the survey "${survey.name}" with ${files}, products and jobs${also}? This cannot be undone.`)) return;
+    for (const c of using) await api(`sites/${siteId}/comparisons/${c.id}`, { method: "DELETE" });
+    await api(`sites/${siteId}/surveys/${survey.id}`, { method: "DELETE" });
+    if (state.shown && using.some((c) => c.id === state.shown?.id)) state.shown = null;
+    await loadSurveys();
+    await loadComparisons(!state.shown);
+    await uploads.loadUnfinished();
+  }
+
+  async function renameComparison(comparison: Comparison): Promise<void> {
+    const name = window.prompt(`New name of comparison ${comparison.id} (empty: named by its surveys):`, comparison.name);
+    if (name === null || name.trim() === comparison.name) return;
+    await api(`sites/${siteId}/comparisons/${comparison.id}`, { method: "PATCH", body: JSON.stringify({ name: name.trim() }) });
+    await loadComparisons(false);
+  }
+
+  async function deleteComparison(comparison: Comparison): Promise<void> {
+    const found = comparison.summary?.detections ?? 0;
+    const label = comparisonLabel(comparison, state.surveys, site.timezone);
+    const what = `Delete comparison ${comparison.id} (${label}) with its ${plural(found, "detection", "detections")}, their verdicts, its products (Δh and more) and jobs? Its surveys stay. This cannot be undone.`;
+    if (!window.confirm(what)) return;
+    await api(`sites/${siteId}/comparisons/${comparison.id}`, { method: "DELETE" });
+    const wasShown = state.shown?.id === comparison.id;
+    if (wasShown) state.shown = null;
+    await loadComparisons(wasShown);
+  }
   $("detections").addEventListener("click", (event) => {
     const button = (event.target as HTMLElement).closest<HTMLButtonElement>("button[data-detection]");
     if (button) map.openDetection(Number(button.dataset.detection));
@@ -177,15 +283,27 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   ($("compare-form") as HTMLFormElement).addEventListener("submit", async (event) => {
     event.preventDefault();
     $("compare-error").textContent = "";
+    $("compare-status").textContent = "";
+    const runAgain = $("run-again") as HTMLInputElement;
     try {
       const created = await postJson<ComparisonCreatedOut>(`sites/${siteId}/comparisons`, {
         pre_survey_id: Number(($("pre-survey") as HTMLSelectElement).value),
         post_survey_id: Number(($("post-survey") as HTMLSelectElement).value),
         method: methodSelect.value || null, // none chosen: the server's default
+        run_again: runAgain.checked,
       });
+      runAgain.checked = false;
+      if (created.existing) {
+        // Made before: opened rather than made again.
+        const shown = state.comparisons.find((c) => c.id === created.comparison.id) ?? created.comparison;
+        $("compare-status").textContent =
+          `These surveys were already compared with ${created.comparison.method}: comparison ${created.comparison.id} is shown. Tick "Run again" to make a new one.`;
+        await show(shown);
+        return;
+      }
       state.comparisons.push(created.comparison);
       renderComparisons();
-      jobs.show([created.job]);
+      if (created.job) jobs.show([created.job]);
     } catch (e) {
       $("compare-error").textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
     }
@@ -201,7 +319,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     URL.revokeObjectURL(url);
   });
 
-  new UploadPanel(
+  const uploads = new UploadPanel(
     $("upload"),
     site,
     config,
