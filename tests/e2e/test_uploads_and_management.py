@@ -227,12 +227,14 @@ def test_surveys_and_comparisons_are_renamed_deleted_and_not_compared_twice(
 
 
 def test_a_failed_survey_is_fixed_by_replacing_its_files_then_deleted(
-    page: Page, app_server: App, tiny_flight: Path
+    page: Page, app_server: App, tiny_flight: Path, dsm_pair: DsmPairPaths
 ) -> None:
-    """A survey of a flight too short to reconstruct fails; its files are replaced from
-    the page and its failed job runs again from the first stage; then it is deleted."""
+    """A survey of a flight too short to reconstruct fails; it does not hide the site's
+    ready DSM on the map; its files are replaced from the page and its failed job runs
+    again from the first stage; then it is deleted."""
     sign_in(page, app_server)
     create_site(page, "Failed flights")
+    upload_dsm(page, dsm_pair.pre, "June", "2026-06-01T10:00")
     page.get_by_label("Video + flight log").check()
 
     def choose(name: str | None = None) -> None:
@@ -251,6 +253,13 @@ def test_a_failed_survey_is_fixed_by_replacing_its_files_then_deleted(
     failed_job = job.get_attribute("data-job")
     survey = page.locator(".survey-list .survey", has_text="Too short")
     expect(survey.locator(".status")).to_have_text("failed")
+    # The newest survey failed: the map still shows the site's ready DSM, June.
+    page.reload()
+    expect(page.get_by_role("heading", name="Failed flights", level=1)).to_be_visible()
+    expect(page.locator(".leaflet-post-pane img.leaflet-tile-loaded").first).to_be_attached(
+        timeout=30_000
+    )
+    page.get_by_label("Video + flight log").check()
     calls: list[str] = []
     page.on(
         "response",
@@ -274,5 +283,6 @@ def test_a_failed_survey_is_fixed_by_replacing_its_files_then_deleted(
     messages: list[str] = []
     page.on("dialog", lambda d: (messages.append(d.message), d.accept()))
     page.get_by_role("button", name="Delete survey Too short").click()
-    expect(page.locator(".survey-list")).to_have_count(0)
+    expect(page.locator(".survey-list .survey")).to_have_count(1)
+    expect(page.locator(".survey-list")).not_to_contain_text("Too short")
     assert "its uploaded files" in messages[-1], messages
