@@ -169,10 +169,13 @@ def api(host: str | None, port: int | None) -> None:
 
     settings = get_settings()
     uvicorn.run(
-        "backend.api.app:create_app",
+        "backend.api.app:create_served_app",
         factory=True,
         host=host or settings.api_host,
         port=port or settings.api_port,
+        # Several processes: one renders map tiles (Python, GIL-bound) on one core only.
+        workers=settings.resolved_api_workers,
+        http="backend.api.http_protocol:NoDelayHTTPProtocol",
     )
 
 

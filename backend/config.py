@@ -1,5 +1,6 @@
 """All configuration, read from SLIDEWATCH_* environment variables (see README)."""
 
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -86,6 +87,34 @@ class Settings(BaseSettings):
     )
     api_host: str = "127.0.0.1"
     api_port: int = 8000
+    api_workers: int | None = Field(
+        default=None,
+        ge=1,
+        description="API processes of `slidewatch api` (and so of `slidewatch run`). Default: "
+        "one per CPU core, at most 4.",
+    )
+    tile_cache_bytes: int = Field(
+        default=64 * 1024**2,
+        ge=0,
+        description="Rendered map tiles kept in memory by each API process, in bytes (0: none).",
+    )
+    tile_disk_cache_bytes: int = Field(
+        default=1024**3,
+        ge=0,
+        description="Rendered map tiles kept on disk (DATA_DIR/cache/tiles), shared by the "
+        "API's processes and kept across restarts, in bytes (0: none).",
+    )
+    tile_max_read_pixels: int = Field(
+        default=4 * 1024**2,
+        gt=0,
+        description="Most pixels of a product that one map tile may decode; a tile that would "
+        "read more (a file without overviews seen from far out) is refused with 422.",
+    )
+    tile_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="A map tile not rendered within this many seconds is answered 503.",
+    )
     worker_concurrency: int = Field(default=1, description="Worker processes per worker.")
     public_url: str | None = Field(
         default=None,
@@ -192,12 +221,22 @@ class Settings(BaseSettings):
         return self.data_dir / "files"
 
     @property
+    def tile_cache_dir(self) -> Path:
+        return self.data_dir / "cache" / "tiles"
+
+    @property
     def work_dir(self) -> Path:
         return self.data_dir / "work"
 
     @property
     def resolved_frontend_dir(self) -> Path:
         return self.frontend_dir or Path(__file__).resolve().parents[1] / "frontend" / "dist"
+
+    @property
+    def resolved_api_workers(self) -> int:
+        # Tiles are rendered in Python (GIL-bound): one process per core uses them all.
+        # At most 4 by default: each process holds its own imports and tile cache.
+        return self.api_workers or max(1, min(os.cpu_count() or 1, 4))
 
     @property
     def resolved_public_url(self) -> str:

@@ -1,5 +1,11 @@
 """The FastAPI application."""
 
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+
 from fastapi import APIRouter, FastAPI
 from sqlalchemy.orm import sessionmaker
 
@@ -38,6 +44,8 @@ from backend.storage import LocalStorage
 from backend.urls import API_PREFIX
 from backend.wiring import wire
 from worker.celery_app import create_celery
+
+PR_SET_PDEATHSIG = 1  # prctl(2)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -97,3 +105,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(frontend.router)
     frontend.mount_frontend(app, settings)
     return app
+
+
+def create_served_app() -> FastAPI:
+    """The app of one process of `slidewatch api`. With several processes uvicorn's parent
+    only supervises them; should it be killed outright (SIGKILL, nothing it can catch), its
+    processes would go on serving the port unsupervised, and a `slidewatch run` that starts
+    the API again could not bind it. So each asks the kernel for SIGTERM when its parent
+    dies."""
+    if multiprocessing.parent_process() is not None and sys.platform == "linux":
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != multiprocessing.parent_process().pid:  # type: ignore[union-attr]
+            os.kill(os.getpid(), signal.SIGTERM)  # the parent died before we asked
+    return create_app()

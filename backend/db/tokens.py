@@ -6,7 +6,7 @@ The same tokens, with an expiry and a user, are the sessions of people signed in
 
 import hashlib
 import secrets
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session
 from backend.db.models import ApiToken
 
 TOKEN_PREFIX = "sw_"
+LAST_USED_RESOLUTION = timedelta(minutes=1)
 
 
 def hash_token(token: str) -> str:
@@ -58,7 +59,11 @@ def authenticate(session: Session, token: str) -> ApiToken | None:
         return None  # run out: sign in again, or make a new token
     if found.user is not None and found.user.disabled_at is not None:
         return None
-    found.last_used_at = now
+    # Written at most once a minute: the map asks for dozens of tiles a second with one
+    # token, and a write per request would make them wait for each other on the token's
+    # row (and on SQLite's single write lock, across the API's processes).
+    if found.last_used_at is None or now - as_utc(found.last_used_at) >= LAST_USED_RESOLUTION:
+        found.last_used_at = now
     return found
 
 

@@ -4,6 +4,7 @@
     slidewatch bench reconstruction --json OUT.json  (worker/commands/bench_reconstruction.py)
     slidewatch bench reconstruction --flights N --json OUT.json   (many seeds, same module)
     slidewatch bench photos --json OUT.json          (worker/commands/bench_photos.py)
+    slidewatch bench tiles --json OUT.json           (worker/commands/bench_tiles.py)
 
 Each prints its figures and writes them to --json.
 """
@@ -15,6 +16,7 @@ import click
 from worker.commands.bench_detection import detection
 from worker.commands.bench_photos import photos
 from worker.commands.bench_reconstruction import reconstruction
+from worker.commands.bench_tiles import tiles
 
 
 @click.group("bench")
@@ -25,3 +27,4 @@ def bench() -> None:
 bench.add_command(detection)
 bench.add_command(reconstruction)
 bench.add_command(photos)
+bench.add_command(tiles)

@@ -14,21 +14,33 @@ The file read is always resolved from our own ids by `survey_layer` / `compariso
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
+import anyio
+import anyio.to_thread
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.access import SiteViewer
 from backend.api.deps import SessionDep, StorageDep, owned_by_site, public_base
+from backend.config import Settings
 from backend.db.models import Comparison, JobState, Product, Site, Survey
 from backend.ids import RowId
+from backend.services.tile_cache import (
+    DiskTileCache,
+    TileCache,
+    TileKey,
+    etag_matches,
+    file_identity,
+)
 from backend.services.tiles import (
     LAYERS,
     BadStyle,
     LayerSpec,
     TileOutsideBounds,
+    TileTooCostly,
     WmtsLayer,
     check_colormap,
     default_rescale,
@@ -117,8 +129,51 @@ def tile_template(base: str, source: LayerSource) -> str:
     return f"{base}{layer}/{{z}}/{{x}}/{{y}}.png"
 
 
+# Browsers keep a tile for a minute without asking, then ask again with its ETag and get
+# 304 while the product is unchanged: a product replaced shows within a minute.
+TILE_CACHE_CONTROL = "private, max-age=60"
+# Renders at once per API process: more threads would only wait for the GIL, and each holds
+# a tile's read in memory.
+TILE_RENDERS_AT_ONCE = 4
+
+
+def _render_limiter(request: Request) -> anyio.CapacityLimiter:
+    # Made on first use: a limiter belongs to the event loop of the process that serves.
+    limiter = getattr(request.app.state, "tile_render_limiter", None)
+    if limiter is None:
+        limiter = request.app.state.tile_render_limiter = anyio.CapacityLimiter(
+            TILE_RENDERS_AT_ONCE
+        )
+    return limiter
+
+
+def _tile_cache(request: Request) -> TileCache:
+    cache = getattr(request.app.state, "tile_cache", None)
+    if cache is None:
+        settings: Settings = request.app.state.settings
+        disk = (
+            DiskTileCache(settings.tile_cache_dir, settings.tile_disk_cache_bytes)
+            if settings.tile_disk_cache_bytes > 0
+            else None
+        )
+        cache = request.app.state.tile_cache = TileCache(settings.tile_cache_bytes, disk)
+    return cache
+
+
+def _render_and_keep(cache: TileCache, key: TileKey, *args: Any, **kwargs: Any) -> bytes:
+    png = render_tile(*args, **kwargs)
+    cache.put(key, png)  # in the render's thread: the disk write stays off the event loop
+    return png
+
+
 async def _tile(
-    source: LayerSource, z: int, x: int, y: int, rescale: str | None, colormap: str | None
+    request: Request,
+    source: LayerSource,
+    z: int,
+    x: int,
+    y: int,
+    rescale: str | None,
+    colormap: str | None,
 ) -> Response:
     if not 0 <= z <= 24 or not (0 <= x < 2**z and 0 <= y < 2**z):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} does not exist")
@@ -127,13 +182,53 @@ async def _tile(
         name = check_colormap(colormap)
     except BadStyle as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from None
+    spec = source.spec
+    key = TileKey(file_identity(source.path), f"{spec.name}/{spec.style}", z, x, y, stretch, name)
+    headers = {"Cache-Control": TILE_CACHE_CONTROL, "ETag": key.etag}
+    if etag_matches(request.headers.get("if-none-match"), key.etag):
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    cache = _tile_cache(request)
+    png = cache.get_memory(key)
+    if png is None and cache.disk is not None:
+        png = await run_in_threadpool(cache.get_disk, key)
+    if png is not None:
+        return Response(png, media_type="image/png", headers={**headers, "X-Tile-Cache": "hit"})
+    settings: Settings = request.app.state.settings
     try:
-        png = await run_in_threadpool(render_tile, source.path, source.spec, z, x, y, stretch, name)
+        # Bounded in time as well as in pixels: a render still running when the answer
+        # gives up runs on in its thread, but no longer than its bounded read takes.
+        with anyio.fail_after(settings.tile_timeout_s):
+            png = await anyio.to_thread.run_sync(
+                partial(
+                    _render_and_keep,
+                    cache,
+                    key,
+                    source.path,
+                    spec,
+                    z,
+                    x,
+                    y,
+                    stretch,
+                    name,
+                    max_read_pixels=settings.tile_max_read_pixels,
+                ),
+                abandon_on_cancel=True,
+                limiter=_render_limiter(request),
+            )
     except TileOutsideBounds:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} is outside the layer"
         ) from None
-    return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=60"})
+    except TileTooCostly as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    except TimeoutError:
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            f"tile {z}/{x}/{y} was not rendered within {settings.tile_timeout_s:g} s "
+            "(SLIDEWATCH_TILE_TIMEOUT_S)",
+            headers={"Retry-After": "5"},
+        ) from None
+    return Response(png, media_type="image/png", headers={**headers, "X-Tile-Cache": "miss"})
 
 
 async def _tilejson(source: LayerSource, request: Request) -> dict:
@@ -153,7 +248,14 @@ async def _tilejson(source: LayerSource, request: Request) -> dict:
         "colormap": source.spec.default_colormap,
         "rescale": None
         if source.spec.default_colormap is None
-        else list(await run_in_threadpool(default_rescale, source.spec, source.path)),
+        else list(
+            await run_in_threadpool(
+                default_rescale,
+                source.spec,
+                source.path,
+                request.app.state.settings.tile_max_read_pixels,
+            )
+        ),
         "unit": "m",
     }
 
@@ -176,6 +278,7 @@ TILE_DOC = {
     **TILE_DOC,
 )
 async def survey_tile(
+    request: Request,
     source: Annotated[LayerSource, Depends(survey_layer)],
     z: int,
     x: int,
@@ -183,7 +286,7 @@ async def survey_tile(
     rescale: Rescale = None,
     colormap: Colormap = None,
 ) -> Response:
-    return await _tile(source, z, x, y, rescale, colormap)
+    return await _tile(request, source, z, x, y, rescale, colormap)
 
 
 @router.get(
@@ -192,6 +295,7 @@ async def survey_tile(
     **TILE_DOC,
 )
 async def comparison_tile(
+    request: Request,
     source: Annotated[LayerSource, Depends(comparison_layer)],
     z: int,
     x: int,
@@ -199,7 +303,7 @@ async def comparison_tile(
     rescale: Rescale = None,
     colormap: Colormap = None,
 ) -> Response:
-    return await _tile(source, z, x, y, rescale, colormap)
+    return await _tile(request, source, z, x, y, rescale, colormap)
 
 
 @router.get(

@@ -1,0 +1,265 @@
+"""Map tiles are cached and revalidated, a replaced product is never served from the cache,
+and what one tile may read and how long it may take are bounded.
+
+On the embedded default with one uploaded survey (its DSM is made a COG on upload; no
+comparison job is needed): a few seconds."""
+
+from __future__ import annotations
+
+import io
+import os
+import socket
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+from unittest.mock import patch
+
+import morecantile
+import numpy as np
+import pytest
+import rasterio
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from PIL import Image
+from sqlalchemy import select
+from uvicorn.protocols.http.auto import AutoHTTPProtocol
+
+from backend.api.http_protocol import NoDelayHTTPProtocol
+from backend.config import Settings
+from backend.db.models import Product
+from backend.services.tile_cache import (
+    DiskTileCache,
+    FileIdentity,
+    TileCache,
+    TileKey,
+    etag_matches,
+)
+from backend.services.tiles import SURVEY_LAYERS, raster_stats, tile_read_pixels
+from tests.api_helpers import upload_dsm
+from tests.monitoring_helpers import app_for, token_for
+from worker.simulator.dsm_pair import DsmPairPaths
+
+TMS = morecantile.tms.get("WebMercatorQuad")
+
+
+@pytest.fixture(scope="module")
+def surveyed(
+    tmp_path_factory: pytest.TempPathFactory, gis_pair: DsmPairPaths
+) -> Iterator[tuple[FastAPI, str]]:
+    settings = Settings(data_dir=tmp_path_factory.mktemp("tile-cache") / "data")
+    with pytest.MonkeyPatch.context() as monkeypatch, app_for(settings, monkeypatch) as app:
+        with TestClient(app) as client:
+            auth = {"Authorization": f"Bearer {token_for(app)}"}
+            site = client.post("/api/v1/sites", json={"name": "cache"}, headers=auth)
+            site_id = site.json()["id"]
+            survey = upload_dsm(client, auth, site_id, gis_pair.pre, "2026-06-01T10:00:00Z")
+        yield app, f"/api/v1/sites/{site_id}/surveys/{survey['id']}/tiles/dsm"
+
+
+@pytest.fixture
+def app(surveyed: tuple[FastAPI, str]) -> Iterator[FastAPI]:
+    application = surveyed[0]
+    settings = application.state.settings
+    saved = settings.model_copy()
+    yield application
+    # Each test may tighten a limit or empty the cache; the next starts as configured.
+    for name in ("tile_max_read_pixels", "tile_timeout_s"):
+        setattr(settings, name, getattr(saved, name))
+
+
+@pytest.fixture
+def layer(surveyed: tuple[FastAPI, str]) -> str:
+    return surveyed[1]
+
+
+@pytest.fixture
+def client(app: FastAPI) -> Iterator[TestClient]:
+    with TestClient(app) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def auth(app: FastAPI) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token_for(app)}"}
+
+
+def _tile(client: TestClient, auth: dict, layer: str, zoom_out: int = 2) -> str:
+    tilejson = client.get(f"{layer}/tilejson.json", headers=auth).json()
+    west, south, east, north = tilejson["bounds"]
+    tile = TMS.tile((west + east) / 2, (south + north) / 2, tilejson["maxzoom"] - zoom_out)
+    return f"{layer}/{tile.z}/{tile.x}/{tile.y}.png"
+
+
+def _product_path(app: FastAPI) -> Path:
+    with app.state.sessionmaker() as session:
+        product = session.scalar(select(Product).where(Product.kind == "dsm"))
+        return app.state.storage.absolute(product.file.path)
+
+
+def test_a_tile_asked_again_comes_from_the_cache_and_a_browser_gets_304(
+    app: FastAPI, client: TestClient, auth: dict, layer: str
+) -> None:
+    url = _tile(client, auth, layer) + "?colormap=viridis"  # a style no other test asks for
+    first = client.get(url, headers=auth)
+    assert first.status_code == 200 and first.headers["x-tile-cache"] == "miss"
+    assert first.headers["cache-control"] == "private, max-age=60"
+    etag = first.headers["etag"]
+    cache = app.state.tile_cache
+    hits = cache.hits
+    second = client.get(url, headers=auth)
+    assert second.headers["x-tile-cache"] == "hit" and cache.hits == hits + 1
+    assert second.content == first.content and second.headers["etag"] == etag
+    # What a browser sends once its copy is older than max-age: 304, nothing rendered.
+    misses = cache.misses
+    revalidated = client.get(url, headers={**auth, "If-None-Match": etag})
+    assert revalidated.status_code == 304 and revalidated.content == b""
+    assert revalidated.headers["etag"] == etag and cache.misses == misses
+    # The token is checked before the cache answers.
+    assert client.get(url, headers={"If-None-Match": etag}).status_code == 401
+    # Another style is another tile.
+    other = client.get(url.replace("viridis", "magma"), headers=auth)
+    assert other.headers["x-tile-cache"] == "miss" and other.headers["etag"] != etag
+
+
+def test_the_api_processes_share_tiles_through_the_disk_cache(
+    app: FastAPI, client: TestClient, auth: dict, layer: str
+) -> None:
+    url = _tile(client, auth, layer) + "?colormap=cividis"
+    first = client.get(url, headers=auth)
+    assert first.headers["x-tile-cache"] == "miss"
+    # Another process has its own memory but the same folder: as one freshly started.
+    del app.state.tile_cache
+    again = client.get(url, headers=auth)
+    assert again.headers["x-tile-cache"] == "hit" and again.content == first.content
+    assert app.state.tile_cache.disk_hits == 1
+
+
+def test_a_replaced_product_is_rendered_anew(
+    app: FastAPI, client: TestClient, auth: dict, layer: str
+) -> None:
+    url = _tile(client, auth, layer)
+    first = client.get(url, headers=auth)
+    assert first.status_code == 200
+    path = _product_path(app)
+    replacement = path.with_suffix(".new.tif")
+    with rasterio.open(path) as src:
+        profile = src.profile
+        data = src.read(1)
+    # The same DSM upside down: another picture within the same stretch.
+    profile.update(driver="GTiff")
+    with rasterio.open(replacement, "w", **profile) as out:
+        out.write(data[::-1], 1)
+    os.replace(replacement, path)  # as a rerun stores a product: a new file in its place
+    second = client.get(url, headers={**auth, "If-None-Match": first.headers["etag"]})
+    assert second.status_code == 200 and second.headers["x-tile-cache"] == "miss"
+    assert second.headers["etag"] != first.headers["etag"]
+    before = np.asarray(Image.open(io.BytesIO(first.content)).convert("RGBA"))
+    after = np.asarray(Image.open(io.BytesIO(second.content)).convert("RGBA"))
+    assert not np.array_equal(before, after)
+
+
+def test_a_tile_that_would_read_too_much_is_refused(
+    app: FastAPI, client: TestClient, auth: dict, layer: str
+) -> None:
+    url = _tile(client, auth, layer, zoom_out=0) + "?colormap=plasma"
+    app.state.settings.tile_max_read_pixels = 100
+    refused = client.get(url, headers=auth)
+    assert refused.status_code == 422
+    assert "SLIDEWATCH_TILE_MAX_READ_PIXELS" in refused.json()["detail"]
+
+
+def test_a_tile_that_takes_too_long_is_answered_503(
+    app: FastAPI, client: TestClient, auth: dict, layer: str
+) -> None:
+    url = _tile(client, auth, layer) + "?colormap=inferno"
+    app.state.settings.tile_timeout_s = 1e-9
+    late = client.get(url, headers=auth)
+    assert late.status_code == 503 and "SLIDEWATCH_TILE_TIMEOUT_S" in late.json()["detail"]
+    assert late.headers["retry-after"]
+
+
+def _plain_tiff(path: Path, side: int, overviews: bool) -> Path:
+    """A float DSM of `side`² pixels, tiled, with or without overviews."""
+    transform = rasterio.transform.from_origin(500000, 5100000, 0.5, 0.5)
+    data = np.add.outer(np.arange(side), np.arange(side)).astype("float32")
+    with rasterio.open(
+        path, "w", driver="GTiff", width=side, height=side, count=1, dtype="float32",
+        crs="EPSG:32632", transform=transform, tiled=True, nodata=-9999,
+    ) as out:  # fmt: skip
+        out.write(data, 1)
+        if overviews:
+            out.build_overviews([2, 4, 8, 16])
+    return path
+
+
+def test_a_tile_read_is_bounded_by_overviews_and_its_footprint(tmp_path: Path) -> None:
+    with_overviews = _plain_tiff(tmp_path / "cog.tif", 2048, overviews=True)
+    without = _plain_tiff(tmp_path / "plain.tif", 2048, overviews=False)
+    with rasterio.open(with_overviews) as cog, rasterio.open(without) as plain:
+        west, south, east, north = rasterio.warp.transform_bounds(cog.crs, "EPSG:4326", *cog.bounds)
+        near = TMS.tile((west + east) / 2, (south + north) / 2, 20)
+        far = TMS.tile((west + east) / 2, (south + north) / 2, 12)
+        # Near: about a tile's worth of pixels either way.
+        assert tile_read_pixels(plain, near.z, near.x, near.y) < 4 * 256**2
+        # Far out the whole file falls in the tile: all of it without overviews, the
+        # coarsest overview with them.
+        assert tile_read_pixels(plain, far.z, far.x, far.y) == 2048**2
+        assert tile_read_pixels(cog, far.z, far.x, far.y) <= (2048 // 16) ** 2
+    # The default stretch of a file without overviews reads a bounded window, not all of it.
+    stats = raster_stats(without, max_read_pixels=256**2)
+    assert np.isfinite([stats.p2, stats.p98]).all() and stats.p98 - stats.p2 < 512
+    assert raster_stats(without).p98 - raster_stats(without).p2 > 3000
+
+
+def _key(z: int) -> TileKey:
+    return TileKey(FileIdentity("/x.tif", 1, 2, 3, 4), "dsm/elevation", z, 0, 0, None, None)
+
+
+def test_the_cache_is_bounded_in_bytes_and_forgets_what_was_used_longest_ago(
+    tmp_path: Path,
+) -> None:
+    cache = TileCache(max_bytes=250)
+    for z in range(3):
+        cache.put(_key(z), bytes(100))
+    assert len(cache) == 2 and cache.size_bytes == 200 and cache.get(_key(0)) is None
+    cache.get(_key(1))
+    cache.put(_key(3), bytes(100))  # evicts 2, used longer ago than 1
+    assert cache.get(_key(1)) is not None and cache.get(_key(2)) is None
+    disk = DiskTileCache(tmp_path / "tiles", max_bytes=1000)
+    for z in range(30):
+        disk.put(_key(z), bytes(100))
+    kept = sum(p.stat().st_size for p in (tmp_path / "tiles").glob("*/*"))
+    assert kept <= 1000 + 100 * 2 and disk.get(_key(29)) == bytes(100)
+    assert TileCache(max_bytes=0).get(_key(0)) is None
+
+
+def test_if_none_match_lists_and_weak_validators() -> None:
+    etag = _key(1).etag
+    assert etag_matches(f'"other", W/{etag}', etag) and etag_matches("*", etag)
+    assert not etag_matches('"other"', etag) and not etag_matches(None, etag)
+    assert _key(1).etag != _key(2).etag
+
+
+def test_the_api_runs_a_process_per_core_by_default() -> None:
+    cores = os.cpu_count() or 1
+    assert Settings().resolved_api_workers == max(1, min(cores, 4))
+    assert Settings(api_workers=3).resolved_api_workers == 3
+    assert SURVEY_LAYERS["dsm"].default_colormap == "terrain"
+
+
+def test_every_connection_of_the_api_is_sent_without_delay() -> None:
+    """With several processes uvicorn's listening socket leaves Nagle's algorithm on; the
+    API's protocol turns it off for each connection (an answer waited 40 ms otherwise)."""
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM, 0)  # as uvicorn binds it
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()
+    with listener, socket.create_connection(listener.getsockname()) as _client:
+        accepted, _ = listener.accept()
+        with accepted:
+            assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 0
+            transport = SimpleNamespace(get_extra_info=lambda name: accepted)
+            protocol = NoDelayHTTPProtocol.__new__(NoDelayHTTPProtocol)
+            with patch.object(AutoHTTPProtocol, "connection_made") as base:
+                protocol.connection_made(transport)  # type: ignore[arg-type]
+            base.assert_called_once()
+            assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
