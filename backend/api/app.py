@@ -21,6 +21,7 @@ from backend.api.routes import (
     health,
     job_events,
     jobs,
+    measurements,
     methods,
     models,
     ogc,
@@ -95,6 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         job_events,
         detection_feedback,
         detection_cells,
+        measurements,
         models,
         methods,
     ):
