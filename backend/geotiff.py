@@ -24,8 +24,11 @@ def is_geotiff(path: Path | str) -> bool:
         return head.read(4) in TIFF_MAGIC
 
 
-def open_geotiff(path: Path | str) -> rasterio.DatasetReader:
-    """Open `path` with GDAL's GTiff driver only; NotGeoTiff if it is no TIFF at all."""
+def open_geotiff(path: Path | str, overview_level: int | None = None) -> rasterio.DatasetReader:
+    """Open `path` with GDAL's GTiff driver only; NotGeoTiff if it is no TIFF at all.
+    `overview_level` opens that overview (0: the first) as if it were the image."""
     if not is_geotiff(path):
         raise NotGeoTiff(f"{Path(path).name} is not a GeoTIFF")
+    if overview_level is not None:
+        return rasterio.open(path, driver="GTiff", overview_level=overview_level)
     return rasterio.open(path, driver="GTiff")
