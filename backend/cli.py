@@ -2,15 +2,13 @@
 
 import importlib
 import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import click
 
 from backend.config import Settings, get_settings
+from backend.supervisor import Program, Supervisor
 
 ADMIN_TOKEN_FILE = "admin-token"
 ADMIN_PASSWORD_FILE = "admin-password"
@@ -179,47 +177,60 @@ def api(host: str | None, port: int | None) -> None:
     )
 
 
-def worker_command(settings: Settings, with_beat: bool) -> list[str]:
-    command = [
-        sys.executable,
-        "-m",
-        "celery",
-        "--app",
-        "worker.celery_app:app",
+CELERY = [sys.executable, "-m", "celery", "--app", "worker.celery_app:app"]
+
+
+def celery_worker_command(index: int) -> list[str]:
+    """One Celery worker process that runs one stage at a time."""
+    return [
+        *CELERY,
         "worker",
         "--loglevel",
         "INFO",
-        "--concurrency",
-        str(settings.worker_concurrency),
         "--queues",
         "slidewatch",
+        # The solo pool runs the task in the worker process itself: no pool child whose
+        # death could wedge the worker (backend/supervisor.py), and the process that dies
+        # is the one its supervisor replaces. Concurrency is one such process per unit.
+        "--pool",
+        "solo",
+        "--hostname",
+        f"worker{index}@%h",
         # Mingle asks the other workers for the tasks they revoked, waiting a second for
         # answers at every start; slidewatch never revokes a task (jobs live in the database).
         "--without-mingle",
     ]
+
+
+def beat_command(settings: Settings) -> list[str]:
+    schedule = settings.data_dir / "beat-schedule"
+    return [*CELERY, "beat", "--loglevel", "INFO", "--schedule", str(schedule)]
+
+
+def worker_programs(settings: Settings, with_beat: bool) -> list[Program]:
+    """SLIDEWATCH_WORKER_CONCURRENCY worker processes, and beat if asked, each restarted
+    whenever it exits."""
+    programs = [
+        Program(f"worker {i}", celery_worker_command(i))
+        for i in range(1, settings.worker_concurrency + 1)
+    ]
     if with_beat:
-        schedule = settings.data_dir / "beat-schedule"
-        command += ["--beat", "--schedule", str(schedule)]
-    return command
+        programs.append(Program("beat", beat_command(settings)))
+    return programs
 
 
 @main.command()
 @click.option("--beat", is_flag=True, help="Also run the scheduler (only in one process).")
 def worker(beat: bool) -> None:
-    """Run a Celery worker that processes jobs."""
-    os.execv(sys.executable, worker_command(get_settings(), beat))
+    """Run the worker processes that process jobs (restarted whenever one exits)."""
+    settings = get_settings()
+    Supervisor(worker_programs(settings, beat), settings.shutdown_grace_s).run()
 
 
 @main.command()
 def beat() -> None:
     """Run the Celery beat scheduler (exactly one per deployment)."""
-    settings = get_settings()
-    schedule = settings.data_dir / "beat-schedule"
-    os.execv(
-        sys.executable,
-        [sys.executable, "-m", "celery", "--app", "worker.celery_app:app", "beat",
-         "--loglevel", "INFO", "--schedule", str(schedule)],
-    )  # fmt: skip
+    os.execv(sys.executable, beat_command(get_settings()))
 
 
 def ensure_admin_token(settings: Settings) -> str | None:
@@ -291,9 +302,10 @@ def seed_demo_command() -> None:
     click.echo("demo site is being processed" if site else "the demo site exists already")
 
 
-def start_demo_seeding(settings: Settings) -> subprocess.Popen | None:
-    """On the first start only (and unless turned off), seed the demo in the background.
-    A database that has sites already is not a first start."""
+def start_demo_seeding(settings: Settings, supervisor: Supervisor) -> bool:
+    """On the first start only (and unless turned off), seed the demo in the background,
+    stopped with the servers if they stop first. A database that has sites already is not
+    a first start."""
     from sqlalchemy import select
 
     from backend.db.models import Site
@@ -302,17 +314,20 @@ def start_demo_seeding(settings: Settings) -> subprocess.Popen | None:
 
     marker = settings.data_dir / MARKER_FILE
     if not settings.seed_demo or marker.exists():
-        return None
+        return False
     marker.write_text("the demo site was seeded on the first start\n")
     with session_scope() as session:
         if session.scalar(select(Site.id).limit(1)) is not None:
-            return None
-    return subprocess.Popen([sys.executable, "-m", "backend.cli", "seed-demo"])
+            return False
+    seeding = [sys.executable, "-m", "backend.cli", "seed-demo"]
+    supervisor.programs.append(Program("demo seeding", seeding, restart=False))
+    return True
 
 
 @main.command()
 def run() -> None:
-    """Everything on one machine: migrate, then run the API and a worker with its scheduler."""
+    """Everything on one machine: migrate, then run the API, the worker processes and beat,
+    each started again if it exits, all stopped together on SIGTERM or SIGINT."""
     from backend.db.migrate import upgrade
 
     settings = get_settings()
@@ -322,9 +337,13 @@ def run() -> None:
     password = ensure_admin_user(settings)
     url = f"http://{settings.api_host}:{settings.api_port}"
 
-    worker_process = subprocess.Popen(worker_command(settings, with_beat=True))
-    api_process = subprocess.Popen([sys.executable, "-m", "backend.cli", "api"])
-    demo_process = start_demo_seeding(settings)
+    supervisor = Supervisor(
+        [
+            Program("api", [sys.executable, "-m", "backend.cli", "api"]),
+            *worker_programs(settings, with_beat=True),
+        ],
+        settings.shutdown_grace_s,
+    )
     click.echo(f"slidewatch is running at {url}  (API docs: {url}/docs)")
     if token:
         click.echo(f"API token: {token}  (kept in {Path(settings.data_dir) / ADMIN_TOKEN_FILE})")
@@ -335,26 +354,13 @@ def run() -> None:
             f"Map: {url}/  sign in as admin with password {password}  "
             f"(kept in {Path(settings.data_dir) / ADMIN_PASSWORD_FILE})"
         )
-    if demo_process:
+    if start_demo_seeding(settings, supervisor):
         click.echo(
             "Demo: a simulated site is being made and processed; it appears on the map within "
             "minutes (SLIDEWATCH_SEED_DEMO=false turns this off)"
         )
-
-    def stop(*_args: object) -> None:
-        for process in (demo_process, api_process, worker_process):
-            if process is not None and process.poll() is None:
-                process.terminate()
-
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
-    try:
-        while api_process.poll() is None and worker_process.poll() is None:
-            time.sleep(0.5)
-    finally:
-        stop()
-        for process in (api_process, worker_process):
-            process.wait(timeout=30)
+    # Until SIGTERM or SIGINT: a process that exits is started again; then all are stopped.
+    supervisor.run()
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from backend.outbound import parse_networks
@@ -71,16 +71,38 @@ class Settings(BaseSettings):
         gt=0,
         description="Most times its file size an uploaded DSM may decompress to.",
     )
+    # Recovery of a killed worker's stage takes at most about stale_stage_after_s +
+    # recovery_interval_s + the broker's polling interval (the sweep's message, then the
+    # stage's): 8 + 2 + 2 x 1 s by default, within 15 s. A live stage is never taken for
+    # lost unless its heartbeat thread misses four beats in a row, and even then the
+    # runner keeps only the newest claim's result (worker/jobs/runner.py).
     heartbeat_interval_s: float = Field(
-        default=10.0, description="How often a running stage records that its worker lives."
+        default=2.0, gt=0, description="How often a running stage records that its worker lives."
     )
     stale_stage_after_s: float = Field(
-        default=60.0,
+        default=8.0,
+        gt=0,
         description="A stage whose heartbeat is older than this is taken to be lost (its "
-        "worker died): it may be claimed again and the recovery sweep queues it again.",
+        "worker died): it may be claimed again and the recovery sweep queues it again. At "
+        "least 3 heartbeat intervals.",
     )
     recovery_interval_s: float = Field(
-        default=30.0, description="How often beat runs the sweep that requeues lost stages."
+        default=2.0, gt=0, description="How often beat runs the sweep that requeues lost stages."
+    )
+    requeue_waiting_after_s: float = Field(
+        default=300.0,
+        gt=0,
+        description="A stage queued this long ago and still not started is queued again (its "
+        "message may have been lost with a worker, e.g. a retry's delayed message on the "
+        "embedded broker). Longer than a stage waits behind others in a busy queue, where "
+        "each extra message is dropped unrun but costs a worker a moment.",
+    )
+    shutdown_grace_s: float = Field(
+        default=8.0,
+        ge=0,
+        description="`slidewatch run` and `slidewatch worker`, when stopped: how long their "
+        "processes may take to stop (finish a request, a stage) before they are killed. "
+        "Below Docker's 10 s stop timeout.",
     )
     task_max_retries: int = Field(
         default=5, description="Retries of a stage after a transient error (with backoff)."
@@ -215,6 +237,17 @@ class Settings(BaseSettings):
     def _networks(cls, values: list[str]) -> list[str]:
         parse_networks(values)  # a mistyped network fails at start, naming it
         return values
+
+    @model_validator(mode="after")
+    def _liveness(self) -> "Settings":
+        # Fewer than 3 beats per stale period would take a live stage whose worker is
+        # merely slow to write one beat (a busy database) for lost, and run it twice.
+        if self.stale_stage_after_s < 3 * self.heartbeat_interval_s:
+            raise ValueError(
+                "SLIDEWATCH_STALE_STAGE_AFTER_S must be at least 3 x "
+                "SLIDEWATCH_HEARTBEAT_INTERVAL_S"
+            )
+        return self
 
     @property
     def storage_dir(self) -> Path:

@@ -33,7 +33,8 @@ def celery_config(settings: Settings) -> dict[str, object]:
     return dict(
         broker_url=settings.resolved_broker_url,
         # A task is acknowledged only when it has finished, so a worker that dies
-        # mid-stage leaves the message to be delivered again.
+        # mid-stage does not take the message with it (Redis delivers it again after the
+        # visibility timeout; the recovery sweep, worker/jobs/recovery.py, does not wait).
         task_acks_late=True,
         task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1,
@@ -45,15 +46,21 @@ def celery_config(settings: Settings) -> dict[str, object]:
         broker_transport_options=transport_options(settings),
         worker_hijack_root_logger=False,
         beat_schedule={
+            # The sweep that queues again a killed worker's stage (worker/jobs/recovery.py)
+            # runs on whichever worker is free. A sweep not started within its interval
+            # is dropped unrun: the next one does its work, and sweeps sent while every
+            # worker is busy with a long stage do not pile up in the queue.
             "recover-stalled-jobs": {
                 "task": RECOVER_TASK,
                 "schedule": float(settings.recovery_interval_s),
+                "options": {"expires": float(settings.recovery_interval_s)},
             },
             # Due monitoring schedules are claimed in the database: a second or restarted
             # beat only sends more ticks, never a second run (backend/services/schedules.py).
             "monitoring-tick": {
                 "task": MONITORING_TICK_TASK,
                 "schedule": float(settings.schedule_tick_s),
+                "options": {"expires": float(settings.schedule_tick_s)},  # as the sweep's
             },
         },
     )

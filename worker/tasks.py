@@ -5,6 +5,7 @@ process's JobContext that the stage runner and the job kinds are given.
 """
 
 import logging
+from datetime import UTC, datetime, timedelta
 from functools import lru_cache
 
 from celery import Task
@@ -57,12 +58,31 @@ def run_stage(self: Task, job_id: int, stage: str) -> None:
             dispatch_stage(app, session, job_id, next_stage)
 
 
-@app.task(name=RECOVER_TASK)
-def recover_stalled_jobs() -> int:
+def sent_at(request_expires: object, expires_after_s: float) -> datetime | None:
+    """When a sweep's message was sent: Celery's messages carry no time sent, but the sweep
+    is always sent to expire `expires_after_s` later (beat's schedule, `_recover_on_start`)."""
+    if not request_expires:
+        return None
+    expires = (
+        request_expires
+        if isinstance(request_expires, datetime)
+        else datetime.fromisoformat(str(request_expires))
+    )
+    expires = expires if expires.tzinfo else expires.replace(tzinfo=UTC)
+    return expires - timedelta(seconds=expires_after_s)
+
+
+@app.task(bind=True, name=RECOVER_TASK)
+def recover_stalled_jobs(self: Task) -> int:
     """Queue again every stage whose worker or message was lost; return how many."""
     context = job_context()
     with context.session_scope() as session:
-        stalled = stalled_stages(session, context.settings.stale_stage_after_s)
+        stalled = stalled_stages(
+            session,
+            context.settings.stale_stage_after_s,
+            requeue_waiting_after_s=context.settings.requeue_waiting_after_s,
+            queue_passed_at=sent_at(self.request.expires, context.settings.recovery_interval_s),
+        )
         for job_id, stage in stalled:
             log.warning("requeueing stalled stage %s of job %s", stage, job_id)
             dispatch_stage(app, session, job_id, stage)
@@ -83,7 +103,7 @@ def _wire(**_kwargs: object) -> None:
 
 @worker_ready.connect
 def _recover_on_start(**_kwargs: object) -> None:
-    # The embedded broker does not redeliver a message taken by a worker that was killed:
-    # sweep at start-up, so that a restarted worker picks such jobs up again.
-    if job_context().settings.broker_is_embedded:
-        recover_stalled_jobs.delay()
+    # A killed worker's message comes back late or never: Redis delivers it again only
+    # after the visibility timeout, the embedded broker not at all. A worker that starts
+    # (often the killed one's replacement) sweeps at once, besides beat's regular sweep.
+    recover_stalled_jobs.apply_async(expires=job_context().settings.recovery_interval_s)

@@ -4,6 +4,14 @@ A stage is *claimed* with one conditional UPDATE (pending, or running with a sta
 heartbeat), so that two workers never run it at once, and a stage whose worker died can
 be taken over. While it runs, a thread keeps its heartbeat fresh. Finished stages are
 never run again; a redelivered message for one only makes sure the next stage is queued.
+
+A claim is fenced by its attempt number (the `attempts` the claim set): the heartbeat and
+the stored result are written only while the stage is still running under that attempt.
+A worker that was taken for dead (its heartbeat stopped for `stale_stage_after_s`) but
+was only stalled can therefore not overwrite the result of the attempt that took over,
+nor keep the stage looking alive: a live stage's result is stored once. Before a claimed
+stage runs, the temporaries a killed attempt left in the job's folder are removed
+(worker/jobs/leftovers.py).
 """
 
 import logging
@@ -18,6 +26,7 @@ from sqlalchemy.orm import Session
 from backend.db.models import Job, JobState, StageRun, StageState
 from worker.jobs.context import JobContext
 from worker.jobs.events import JobEvent, publish
+from worker.jobs.leftovers import job_folder, remove_leftovers
 from worker.jobs.registry import job_kind
 
 log = logging.getLogger(__name__)
@@ -87,7 +96,9 @@ def _following(job: Job, run: StageRun) -> StageRun | None:
     return min(later, key=lambda r: r.position) if later else None
 
 
-def _claim(session: Session, run_id: int, now: datetime, stale_after_s: float) -> bool:
+def _claim(session: Session, run_id: int, now: datetime, stale_after_s: float) -> int | None:
+    """Take the stage if it is pending or its worker is dead: the attempt number that
+    fences this claim, None if a live worker has it."""
     stale = now - timedelta(seconds=stale_after_s)
     claimed = session.execute(
         update(StageRun)
@@ -108,15 +119,29 @@ def _claim(session: Session, run_id: int, now: datetime, stale_after_s: float) -
         )
         .execution_options(synchronize_session=False)
     )
-    return claimed.rowcount == 1
+    if claimed.rowcount != 1:
+        return None
+    # The row is locked by the UPDATE until this transaction ends (PostgreSQL's row lock,
+    # SQLite's database lock): the number read is the one this claim wrote.
+    return session.scalar(select(StageRun.attempts).where(StageRun.id == run_id))
+
+
+def _ours(run_id: int, attempt: int) -> Any:
+    """The stage is still running under this claim (no other worker took it over)."""
+    return (
+        (StageRun.id == run_id)
+        & (StageRun.state == StageState.running)
+        & (StageRun.attempts == attempt)
+    )
 
 
 class _Heartbeat:
     """Keeps a running stage's heartbeat fresh and writes its progress, from a thread."""
 
-    def __init__(self, context: JobContext, run_id: int) -> None:
+    def __init__(self, context: JobContext, run_id: int, attempt: int) -> None:
         self.context = context
         self.run_id = run_id
+        self.attempt = attempt
         self.interval_s = context.settings.heartbeat_interval_s
         self.progress = 0.0
         self._stop = threading.Event()
@@ -137,11 +162,18 @@ class _Heartbeat:
         while not self._stop.wait(self.interval_s):
             try:
                 with self.context.session_scope() as session:
-                    session.execute(
+                    beat = session.execute(
                         update(StageRun)
-                        .where(StageRun.id == self.run_id, StageRun.state == StageState.running)
+                        .where(_ours(self.run_id, self.attempt))
                         .values(heartbeat_at=utcnow(), progress=self.progress)
                     )
+                if beat.rowcount == 0:
+                    log.warning(
+                        "stage run %s: attempt %s was taken over; its result will be dropped",
+                        self.run_id,
+                        self.attempt,
+                    )
+                    return
             except Exception:  # a missed beat is harmless; the next one retries
                 log.warning("heartbeat of stage run %s failed", self.run_id, exc_info=True)
 
@@ -167,7 +199,8 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
                 return following.stage
             return None
         now = utcnow()
-        if not _claim(session, run.id, now, context.settings.stale_stage_after_s):
+        attempt = _claim(session, run.id, now, context.settings.stale_stage_after_s)
+        if attempt is None:
             return None  # a live worker has it
         if job.state == JobState.queued:
             job.state = JobState.running
@@ -176,11 +209,12 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
         _append_log(run, [log_line("INFO", f"attempt {run.attempts + 1} started")])
         inputs: dict[str, Any] = kind.load_inputs(session, job)
         run_id = run.id
+    remove_leftovers(job_folder(inputs))
 
     started = time.perf_counter()
     captured = _StageLog()
     try:
-        with captured, _Heartbeat(context, run_id) as heartbeat:
+        with captured, _Heartbeat(context, run_id, attempt) as heartbeat:
             result = kind.run_stage(stage, inputs, heartbeat.report)
     except InputError as exc:
         _keep_log(context, run_id, captured.lines)
@@ -193,6 +227,21 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
     result = {**result, "wall_seconds": round(time.perf_counter() - started, 3)}
 
     with context.session_scope() as session:
+        # Fenced: the conditional UPDATE locks the row for the rest of the transaction, or
+        # finds that another attempt has the stage now, whose result is the one kept.
+        if (
+            session.execute(
+                update(StageRun).where(_ours(run_id, attempt)).values(heartbeat_at=utcnow())
+            ).rowcount
+            == 0
+        ):
+            log.warning(
+                "stage %s of job %s: attempt %s was taken over; its result is dropped",
+                stage,
+                job_id,
+                attempt,
+            )
+            return None
         run = session.get(StageRun, run_id)
         job = run.job
         kind.store_stage_result(session, job, stage, result)
