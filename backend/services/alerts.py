@@ -367,6 +367,23 @@ def backoff_s(settings: Settings, attempt: int) -> float:
 def _claim_attempt(session: Session, delivery: Delivery, settings: Settings) -> int | None:
     """Take attempt n+1 with a conditional UPDATE; None if another worker took it."""
     attempt = delivery.attempts + 1
+    if attempt > settings.delivery_max_attempts:
+        # Its attempts are used up (an attempt that died with its worker counted too): it
+        # fails now rather than being tried again.
+        session.execute(
+            update(Delivery)
+            .where(Delivery.id == delivery.id, Delivery.attempts == delivery.attempts)
+            .values(
+                status=DeliveryStatus.failed,
+                next_attempt_at=None,
+                last_error=(
+                    f"gave up after {delivery.attempts} attempts: "
+                    f"{delivery.last_error or 'the last attempt did not finish'}"
+                ),
+            )
+            .execution_options(synchronize_session=False)
+        )
+        return None
     # While it is in flight, the sweep must not think the delivery is lost.
     in_flight_until = utcnow() + timedelta(seconds=settings.webhook_timeout_s + 30)
     claimed = session.execute(
@@ -404,7 +421,13 @@ def attempt_delivery(
     if request is None:
         status_code, error = None, prepare_error
     else:
-        status_code, error = _send(settings, request)
+        try:
+            status_code, error = _send(settings, request)
+        except Exception as exc:
+            # Whatever the failure, it is this attempt's, recorded below and counted: an
+            # error that escaped would leave the delivery claimed with no record, to be
+            # found overdue and tried again without end.
+            status_code, error = None, f"{type(exc).__name__}: {exc}"
     duration_ms = (time.perf_counter() - started) * 1000
     delivered = error is None
 
