@@ -4,6 +4,8 @@ A layer is a named style of one raster product that we own:
 
     survey      dsm        the DSM, colormap `terrain`, stretched to its 2nd..98th percentile
                 hillshade  the DSM shaded (titiler's HillShade formula, sun from the north-west)
+                orthophoto the true orthophoto (RGB, its alpha as the mask), as it is or moved
+                           by a comparison's co-registration (`shift_m`)
     comparison  dh         Δh = post − pre, colormap `rdbu_r`, symmetric around zero
                 dsm        the co-registered post DSM, as the survey DSM
                 hillshade  the co-registered post DSM shaded
@@ -63,6 +65,7 @@ class LayerStyle:
     elevation = "elevation"
     difference = "difference"
     hillshade = "hillshade"
+    image = "image"  # colour bands drawn as they are: no stretch, no colormap
 
 
 @dataclass(frozen=True)
@@ -77,6 +80,7 @@ class LayerSpec:
 SURVEY_LAYERS: dict[str, LayerSpec] = {
     "dsm": LayerSpec("dsm", "dsm", LayerStyle.elevation, "DSM", "terrain"),
     "hillshade": LayerSpec("hillshade", "dsm", LayerStyle.hillshade, "Hillshade", None),
+    "orthophoto": LayerSpec("orthophoto", "orthophoto", LayerStyle.image, "Orthophoto", None),
 }
 COMPARISON_LAYERS: dict[str, LayerSpec] = {
     "dh": LayerSpec("dh", "dh", LayerStyle.difference, "Δh (post − pre)", "rdbu_r"),
@@ -370,9 +374,13 @@ def render_tile(
     rescale: tuple[float, float] | None = None,
     colormap: str | None = None,
     max_read_pixels: int = DEFAULT_MAX_READ_PIXELS,
+    shift_m: tuple[float, float] | None = None,
 ) -> bytes:
     """A 256 px PNG of tile z/x/y; raises TileOutsideBounds outside the raster and
-    TileTooCostly where the read would decode more than `max_read_pixels` of the file."""
+    TileTooCostly where the read would decode more than `max_read_pixels` of the file.
+    An image layer may be drawn moved by `shift_m` (east, north on the ground)."""
+    if spec.style == LayerStyle.image:
+        return _image_tile(path, z, x, y, max_read_pixels, shift_m)
     hillshade = spec.style == LayerStyle.hillshade
     buffer = HILLSHADE_BUFFER if hillshade else 0
     method = "cubic" if hillshade else "bilinear"
@@ -404,6 +412,43 @@ def render_tile(
         img = img.rescale(in_range=(stretch,))
         name = colormap or spec.default_colormap
     return encode_png(img, name)
+
+
+def _image_tile(
+    path: Path,
+    z: int,
+    x: int,
+    y: int,
+    max_read_pixels: int,
+    shift_m: tuple[float, float] | None,
+) -> bytes:
+    """A colour tile: the tile's area read from the file (moved back by `shift_m`, so the
+    data shows `shift_m` further east and north), its alpha band as the mask."""
+    with _READERS.reader(path) as reader:
+        if not reader.tile_exists(x, y, z):
+            raise TileOutsideBounds(f"Tile(x={x}, y={y}, z={z}) is outside bounds")
+        pixels = tile_read_pixels(reader.dataset, z, x, y)
+        if pixels > max_read_pixels:
+            raise TileTooCostly(pixels, max_read_pixels)
+        if not shift_m:
+            img = reader.tile(x, y, z, tilesize=TILE_SIZE, resampling_method="bilinear",
+                              reproject_method="bilinear")  # fmt: skip
+        else:
+            left, bottom, right, top = TMS.xy_bounds(morecantile.Tile(x, y, z))
+            # Web Mercator stretches ground distances by 1 / cos(latitude).
+            lat = math.degrees(math.atan(math.sinh((top + bottom) / 2 / 6378137.0)))
+            k = 1.0 / math.cos(math.radians(lat))
+            dx, dy = shift_m[0] * k, shift_m[1] * k
+            img = reader.part(
+                (left - dx, bottom - dy, right - dx, top - dy),
+                dst_crs=WEB_MERCATOR,
+                bounds_crs=WEB_MERCATOR,
+                width=TILE_SIZE,
+                height=TILE_SIZE,
+                resampling_method="bilinear",
+                reproject_method="bilinear",
+            )
+    return img.render(img_format="PNG")
 
 
 # zlib level of the tiles' PNGs: level 1 takes a fraction of the time of GDAL's default 6

@@ -66,3 +66,14 @@ describe("detections", () => {
     expect(plain).toContain("none (the method runs no model)");
   });
 });
+
+describe("a detection's position", () => {
+  it("gives latitude/longitude and UTM, and the text its copy button copies", () => {
+    const props = { area_m2: 10, score: 0.9, method: "threshold", feedback: null } as unknown as DetectionProperties;
+    const html = detectionPopupHtml(2, props, "UTC", [36.0663, 139.1032]);
+    expect(html).toContain("Centre: 36.066300° N, 139.103200° E");
+    expect(html).toContain("UTM 54N 329179.5 E 3992967.1 N");
+    expect(html).toContain('data-position="36.066300° N, 139.103200° E (UTM 54N 329179.5 E 3992967.1 N)"');
+    expect(detectionPopupHtml(2, props, "UTC")).not.toContain("Copy position");
+  });
+});

@@ -2,6 +2,7 @@
 
 import { escapeHtml, formatArea, formatDateTime, formatMetres, formatVolume } from "./format";
 import type { DetectionProperties } from "./types";
+import { formatLatLon, formatUtm, toUtm } from "./map/utm";
 
 /** Yellow (unsure) to dark red (sure); more opaque the surer the detection. */
 export function scoreColor(score: number): string {
@@ -60,7 +61,14 @@ export function withInterval(
 }
 
 /** The popup's table: every number with its unit; text escaped. */
-export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone: string): string {
+/** A detection's popup; `position` (lat, lon of its centre) adds where to walk to, with a
+ * button that copies it. */
+export function detectionPopupHtml(
+  id: number,
+  p: DetectionProperties,
+  timeZone: string,
+  position?: [number, number],
+): string {
   const u = p.uncertainty ?? {};
   const rows: Array<[string, string]> = [
     ["Area", withInterval(p.area_m2, u.area_m2_ci95, formatArea)],
@@ -80,6 +88,7 @@ export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone:
     <div class="popup" data-detection-id="${id}">
       <h3>Detection ${id}</h3>
       <table>${rows.map(([k, v]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(v)}</td></tr>`).join("")}</table>
+      ${position ? positionHtml(position) : ""}
       <p class="verdict">Verdict: <span data-role="verdict">${escapeHtml(verdict)}</span>
         (${p.feedback?.confirmed ?? 0} confirmed, ${p.feedback?.false_alarm ?? 0} false alarm)</p>
       <div class="verdict-buttons">
@@ -87,4 +96,13 @@ export function detectionPopupHtml(id: number, p: DetectionProperties, timeZone:
         <button type="button" data-verdict="false_alarm">False alarm</button>
       </div>
     </div>`;
+}
+
+/** The centre as latitude/longitude and UTM, and a "Copy position" button whose text to
+ * copy is in its data-position. */
+export function positionHtml([lat, lon]: [number, number]): string {
+  const text = `${formatLatLon(lat, lon)} (UTM ${formatUtm(toUtm(lat, lon))})`;
+  return `<p class="position" data-role="position">Centre: ${escapeHtml(formatLatLon(lat, lon))}<br>UTM ${escapeHtml(
+    formatUtm(toUtm(lat, lon)),
+  )}<br><button type="button" data-position="${escapeHtml(text)}">Copy position</button></p>`;
 }

@@ -119,6 +119,9 @@ export interface Comparison {
     total_area_m2?: number;
     total_volume_loss_m3?: number;
     total_volume_gain_m3?: number;
+    /** The co-registration's correction of the post DSM (after its rotation about the grid centre). */
+    shift_m?: { east: number; north: number; up: number };
+    rotation_deg?: number;
   } | null;
   error: string | null;
   created_at: string;

@@ -161,6 +161,7 @@ def test_video_and_log_become_a_dsm_that_can_be_compared(
         f'The post-event survey "July flight" missed its quality bounds: {message}'
         for message in failed
     ]
+    assert_orthophoto_tiles(client, auth, site_id, sid, comparison)
 
     # A report written before the verdict existed gets it from the stage results it keeps:
     # a DSM mostly interpolated where the cameras overlapped misses its bounds, and the
@@ -417,3 +418,40 @@ def test_a_joined_log_is_read_against_the_survey_video(
     assert made.status_code == 201, made.text
     refused = put_file(client, auth, site, made.json()["id"], log, "log")
     assert refused.status_code == 422 and "recording 5 was chosen" in refused.json()["detail"]
+
+
+def assert_orthophoto_tiles(
+    client: TestClient, auth: dict, site_id: int, survey_id: int, comparison: dict
+) -> None:
+    """The survey's orthophoto on the map: colour tiles with their mask, and, for the
+    comparison whose post survey it is, the same tiles moved by its co-registration."""
+    import io
+
+    import morecantile
+    from PIL import Image
+
+    base = f"/api/v1/sites/{site_id}/surveys/{survey_id}/tiles/orthophoto"
+    info = client.get(f"{base}/tilejson.json", headers=auth).json()
+    assert info["colormap"] is None and info["rescale"] is None
+    west, south, east, north = info["bounds"]
+    tile = morecantile.tms.get("WebMercatorQuad").tile(
+        (west + east) / 2, (south + north) / 2, info["maxzoom"] - 2
+    )
+    url = f"{base}/{tile.z}/{tile.x}/{tile.y}.png"
+    plain = client.get(url, headers=auth)
+    assert plain.status_code == 200 and plain.headers["content-type"] == "image/png"
+    rgba = np.asarray(Image.open(io.BytesIO(plain.content)).convert("RGBA"))
+    seen = rgba[..., 3] > 0
+    assert seen.mean() > 0.5 and rgba[..., :3][seen].std() > 5  # ground with texture
+    shift = comparison["summary"]["shift_m"]
+    assert abs(shift["east"]) + abs(shift["north"]) > 0.05  # stand-alone GNSS: metres off
+    moved = client.get(url, params={"coregistered_by": comparison["id"]}, headers=auth)
+    assert moved.status_code == 200 and moved.headers["etag"] != plain.headers["etag"]
+    assert moved.content != plain.content
+    refused = client.get(
+        f"/api/v1/sites/{site_id}/surveys/{survey_id}/tiles/dsm/{tile.z}/{tile.x}/{tile.y}.png",
+        params={"coregistered_by": comparison["id"]},
+        headers=auth,
+    )
+    assert refused.status_code == 422 and "orthophoto" in refused.json()["detail"]
+

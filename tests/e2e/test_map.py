@@ -16,6 +16,20 @@ from worker.simulator.dsm_pair import DsmPairPaths
 JOB_TIMEOUT_MS = 180_000
 
 
+def tile_requests(page: Page, clear: bool = False) -> list[str]:
+    """The DSM tile URLs the page fetched since the last clear (it fetches tiles with its
+    token and shows blobs, so the browser's resource log tells which products they were)."""
+    return page.evaluate(
+        """(clear) => {
+            const names = performance.getEntriesByType("resource").map((e) => e.name)
+                .filter((n) => n.includes("/tiles/hillshade/"));
+            if (clear) performance.clearResourceTimings();
+            return names;
+        }""",
+        clear,
+    )
+
+
 def sign_in(page: Page, app: App) -> None:
     page.goto(app.url + "/")
     expect(page.get_by_role("heading", name="Sign in")).to_be_visible()
@@ -84,8 +98,29 @@ def test_sign_in_upload_compare_and_read_the_map(
         expect(page.locator(f".leaflet-{pane}-pane img.leaflet-tile-loaded").first).to_be_attached(
             timeout=30_000
         )
-    expect(page.locator("[data-legend=elevation]")).to_contain_text(" m")
+    # Each DSM in its own stretch, the post one co-registered and the correction stated.
+    expect(page.locator("[data-legend=elevation-pre]")).to_contain_text(" m")
+    expect(page.locator("[data-legend=elevation-post]")).to_contain_text(" m")
     expect(page.locator("[data-legend=dh]")).to_contain_text("0 m")
+    note = page.locator("[data-legend=alignment]")
+    expect(note).to_contain_text(re.compile(r"Post shown co-registered onto pre: post moved .* m E"))
+    # The post hillshade comes from the comparison's co-registered DSM ...
+    assert any("/comparisons/" in url for url in tile_requests(page, clear=True))
+    page.get_by_label("Post as uploaded (not co-registered)").check()
+    expect(note).to_contain_text("Post shown as uploaded; the comparison found post moved")
+    page.wait_for_timeout(1500)
+    # ... and, as uploaded, from the survey's own.
+    fetched = tile_requests(page)
+    assert fetched and not any("/comparisons/" in url for url in fetched), fetched
+    page.get_by_label("One elevation stretch for both DSMs").check()
+    expect(page.locator("[data-legend=elevation]")).to_contain_text(" m")
+    page.get_by_label("Post as uploaded (not co-registered)").uncheck()
+    page.get_by_label("One elevation stretch for both DSMs").uncheck()
+    expect(note).to_contain_text("co-registered onto pre")
+    # Where the pointer is, and the scale.
+    page.locator("#map").hover()
+    expect(page.locator(".map-cursor")).to_contain_text(re.compile(r"° [NS], .*UTM \d+[NS]"))
+    expect(page.locator(".leaflet-control-scale-line")).to_contain_text(" m")
     assert drawn_pixels(page, "detections") > 100
     page.get_by_role("button", name="Zoom to site").click()
     page.wait_for_timeout(500)
@@ -110,7 +145,7 @@ def test_sign_in_upload_compare_and_read_the_map(
 
     # One layer at a time for the docs: pre, post, Δh.
     zoom_to_site(page)
-    layers = {"pre": "Pre DSM", "post": "Post DSM", "dh": "Δh (post − pre)"}
+    layers = {"pre": "Pre survey", "post": "Post survey", "dh": "Δh (post − pre)"}
     for shown, _label in layers.items():
         for key, label in layers.items():
             page.get_by_label(label, exact=True).set_checked(key == shown)
@@ -137,8 +172,42 @@ def test_sign_in_upload_compare_and_read_the_map(
     shot(page, "map-swipe", "map-swipe")
 
     # Opacity of a layer.
-    page.get_by_label("Post DSM opacity (%)").fill("40")
+    page.get_by_label("Post survey opacity (%)").fill("40")
     assert page.locator(".leaflet-post-pane").evaluate("e => e.style.opacity") == "0.4"
+
+    # Measuring: a distance, a profile across the site and the volume inside an area.
+    page.get_by_label("Swipe pre | post").uncheck()
+    page.get_by_role("checkbox", name="Detections", exact=True).set_checked(False)
+    zoom_to_site(page)
+    box = page.locator("#map").bounding_box()
+    assert box is not None
+
+    def click_map(fx: float, fy: float) -> None:
+        page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
+
+    page.get_by_text("Measure", exact=True).click()
+    page.get_by_role("button", name="Distance").click()
+    # Points in the middle of the map, clear of the controls on both sides.
+    click_map(0.4, 0.5)
+    click_map(0.65, 0.5)
+    page.get_by_role("button", name="Finish").click()
+    result = page.locator(".measure-result")
+    expect(result).to_contain_text(re.compile(r"Distance: [\d,.]+ m"))
+    page.get_by_role("button", name="Elevation profile").click()
+    click_map(0.42, 0.4)
+    click_map(0.66, 0.6)
+    page.get_by_role("button", name="Finish").click()
+    expect(result).to_contain_text("Profile of pre and post (co-registered)")
+    expect(result.locator("svg.profile-chart path")).to_have_count(2)  # pre and post
+    page.get_by_role("button", name="Volume (pre → post)").click()
+    for fx, fy in ((0.4, 0.3), (0.66, 0.3), (0.66, 0.75), (0.4, 0.75)):
+        click_map(fx, fy)
+    page.get_by_role("button", name="Finish").click()
+    expect(result).to_contain_text("Cut (lost)")
+    expect(page.get_by_role("button", name="Finish")).to_be_hidden()  # the drawing ended
+    expect(result).to_contain_text("m³")
+    expect(result).to_contain_text("LoD (95 %)")
+    shot(page, "map-measure-volume", "map-measure-volume")
 
 
 def test_a_cut_connection_and_a_reload_resume_the_upload(
@@ -330,7 +399,7 @@ def test_a_video_survey_is_processed_while_it_uploads(
     job = page.locator(".job").first
     expect(job).to_contain_text("Reconstruction of survey")
     expect(job).to_have_class(re.compile("job-succeeded"), timeout=JOB_TIMEOUT_MS)
-    expect(job.locator(".stage-succeeded")).to_have_count(5)
+    expect(job.locator(".stage-succeeded")).to_have_count(6)
     # The log's requests, then the video's: the job was queued while the video went up.
     process_at = requests.index("process")
     assert requests.count("process") == 1 and 0 < process_at < len(requests) - 10, requests

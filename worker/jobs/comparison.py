@@ -134,11 +134,16 @@ class ComparisonJob(StorageJob):
         comparison.status = JobState.succeeded
         comparison.error = None
         comparison.finished_at = datetime.now(UTC)
+        correction = pipeline.summarize(results)
         comparison.summary = {
             "detections": len(detections),
             "total_area_m2": round(sum(d.area_m2 for d in detections), 3),
             "total_volume_loss_m3": round(sum(d.volume_loss_m3 for d in detections), 3),
             "total_volume_gain_m3": round(sum(d.volume_gain_m3 for d in detections), 3),
+            # What the co-registration did to the post DSM: the map states it and applies
+            # it to the post survey's orthophoto tiles.
+            "shift_m": correction["shift_m"],
+            "rotation_deg": correction["rotation_deg"],
             "stages": results,
         }
         session.flush()

@@ -39,6 +39,7 @@ from backend.services.tiles import (
     LAYERS,
     BadStyle,
     LayerSpec,
+    LayerStyle,
     TileOutsideBounds,
     TileTooCostly,
     WmtsLayer,
@@ -174,6 +175,7 @@ async def _tile(
     y: int,
     rescale: str | None,
     colormap: str | None,
+    shift_m: tuple[float, float] | None = None,
 ) -> Response:
     if not 0 <= z <= 24 or not (0 <= x < 2**z and 0 <= y < 2**z):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} does not exist")
@@ -183,7 +185,10 @@ async def _tile(
     except BadStyle as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from None
     spec = source.spec
-    key = TileKey(file_identity(source.path), f"{spec.name}/{spec.style}", z, x, y, stretch, name)
+    style = f"{spec.name}/{spec.style}"
+    if shift_m:
+        style += f"@{shift_m[0]:.3f},{shift_m[1]:.3f}"  # a moved tile is another tile
+    key = TileKey(file_identity(source.path), style, z, x, y, stretch, name)
     headers = {"Cache-Control": TILE_CACHE_CONTROL, "ETag": key.etag}
     if etag_matches(request.headers.get("if-none-match"), key.etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
@@ -211,6 +216,7 @@ async def _tile(
                     stretch,
                     name,
                     max_read_pixels=settings.tile_max_read_pixels,
+                    shift_m=shift_m,
                 ),
                 abandon_on_cancel=True,
                 limiter=_render_limiter(request),
@@ -274,19 +280,57 @@ TILE_DOC = {
 
 @router.get(
     "/surveys/{survey_id}/tiles/{layer}/{z}/{x}/{y}.png",
-    summary="A map tile (WebMercatorQuad, 256 px PNG) of a survey layer: dsm, hillshade",
+    summary="A map tile (WebMercatorQuad, 256 px PNG) of a survey layer: dsm, hillshade, "
+    "orthophoto",
     **TILE_DOC,
 )
 async def survey_tile(
     request: Request,
     source: Annotated[LayerSource, Depends(survey_layer)],
+    session: SessionDep,
     z: int,
     x: int,
     y: int,
     rescale: Rescale = None,
     colormap: Colormap = None,
+    coregistered_by: Annotated[
+        RowId | None,
+        Query(
+            description="A comparison whose post survey this is: the orthophoto drawn moved by "
+            "its co-registration (its horizontal shift), onto the pre survey"
+        ),
+    ] = None,
 ) -> Response:
-    return await _tile(request, source, z, x, y, rescale, colormap)
+    shift = None
+    if coregistered_by is not None:
+        shift = _coregistration_shift(session, source, coregistered_by)
+    return await _tile(request, source, z, x, y, rescale, colormap, shift)
+
+
+def _coregistration_shift(
+    session: SessionDep, source: LayerSource, comparison_id: int
+) -> tuple[float, float]:
+    """The horizontal correction a comparison applied to this survey (its post survey)."""
+    if source.spec.style != LayerStyle.image:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            "coregistered_by moves orthophoto tiles only; the co-registered post DSM is the "
+            "comparison's own dsm and hillshade layers",
+        )
+    comparison = session.get(Comparison, comparison_id)
+    if comparison is None or comparison.site_id != source.site_id:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"comparison {comparison_id} not found")
+    if comparison.post_survey_id != source.owner_id:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"survey {source.owner_id} is not the post survey of comparison {comparison_id}",
+        )
+    shift = (comparison.summary or {}).get("shift_m")
+    if not shift:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"comparison {comparison_id} has no co-registration yet"
+        )
+    return float(shift["east"]), float(shift["north"])
 
 
 @router.get(

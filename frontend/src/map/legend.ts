@@ -20,8 +20,10 @@ function scale(title: string, gradient: string, range: [number, number], id: str
   return box;
 }
 
-export function elevationLegend(range: [number, number]): HTMLElement {
-  return scale("Elevation (m above the DSM's datum)", cssGradient("terrain"), range, "elevation");
+/** The elevation colours in metres; `layer` names the DSM when each has its own stretch. */
+export function elevationLegend(range: [number, number], layer?: string): HTMLElement {
+  const title = layer ? `${layer}: elevation (m above its datum)` : "Elevation (m above the DSMs' datum)";
+  return scale(title, cssGradient("terrain"), range, layer ? `elevation-${layer.split(" ")[0].toLowerCase()}` : "elevation");
 }
 
 export function differenceLegend(range: [number, number]): HTMLElement {

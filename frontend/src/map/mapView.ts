@@ -1,5 +1,6 @@
-// The site's map: pre and post DSMs (elevation colours over hillshade), Δh, detections and
-// their patch cells, survey footprints and flight trajectories; swipe, opacity, legends.
+// The site's map: pre and post surveys (their orthophotos, or their DSMs as elevation colours
+// over hillshade), Δh, detections and their patch cells, survey footprints and flight
+// trajectories; swipe, opacity, legends.
 // Leaflet draws vectors on a Canvas 2D renderer; there is no basemap unless one is set.
 
 import L from "leaflet";
@@ -9,11 +10,39 @@ import { symmetricRange, unionRange } from "../colormap";
 import { cellStyle, detectionPopupHtml, detectionStyle } from "../detections";
 import { escapeHtml, formatDate } from "../format";
 import type { Comparison, DetectionFeature, MapConfig, Product, Site, Survey, TileJson, Verdict } from "../types";
+import { correctionText } from "./alignment";
 import { differenceLegend, elevationLegend, scoreLegend } from "./legend";
+import { MeasureTool } from "./measure";
 import { swipeClips } from "./swipe";
 import { type Owner, productTileLayer, tileJson, tileTemplate } from "./tiles";
+import { formatLatLon, formatUtm, toUtm } from "./utm";
+
+/** What the map did with the post survey: moved by the comparison's correction, or not. */
+function alignmentNote(comparison: Comparison, corrected: boolean): HTMLElement {
+  const note = document.createElement("p");
+  note.className = "alignment-note";
+  note.dataset.legend = "alignment";
+  const text = correctionText(comparison.summary);
+  if (!text) note.textContent = "Post shown as uploaded: the comparison states no correction.";
+  else if (corrected) note.textContent = `Post shown co-registered onto pre: ${text}.`;
+  else note.textContent = `Post shown as uploaded; the comparison found ${text}.`;
+  return note;
+}
+
+/** The centre of a detection's polygon (of its bounds), as [lat, lon]. */
+function centreOf(layer: L.Layer | null): [number, number] | undefined {
+  const bounded = layer as (L.Layer & { getBounds?: () => L.LatLngBounds }) | null;
+  const centre = bounded?.getBounds?.().getCenter();
+  return centre ? [centre.lat, centre.lng] : undefined;
+}
+
+function layerOf(popup: L.Popup): L.Layer | null {
+  return (popup as unknown as { _source?: L.Layer })._source ?? null;
+}
 
 type LayerKey = "pre" | "post" | "dh" | "detections" | "cells" | "footprints" | "trajectories";
+/** What the pre and post layers show: a survey's orthophoto (imagery, where it has one) or its DSM. */
+export type SurveyView = "orthophoto" | "dsm";
 
 const PANES: Record<string, number> = {
   pre: 250,
@@ -26,8 +55,8 @@ const PANES: Record<string, number> = {
 };
 
 const LABELS: Record<LayerKey, string> = {
-  pre: "Pre DSM",
-  post: "Post DSM",
+  pre: "Pre survey",
+  post: "Post survey",
   dh: "Δh (post − pre)",
   detections: "Detections",
   cells: "Patch cells",
@@ -55,12 +84,22 @@ export class MapView {
   private readonly legendBox: HTMLElement;
   private readonly controlsBox: HTMLElement;
   private readonly swipeBox: HTMLElement;
+  private readonly cursorBox: HTMLElement;
+  // The pre and post layers' legends, first in the legend box.
+  private readonly surveyLegends = document.createElement("div");
+  readonly measure: MeasureTool;
   private swipeOn = false;
   private swipeFraction = 0.5;
   private siteBounds: L.LatLngBounds | null = null;
   private detectionLayers = new Map<number, L.Path>();
   private site: Site | null = null;
   private generation = 0;
+  // Imagery first: people read an orthophoto at a glance; a survey without one (a DSM
+  // upload) shows its DSM either way.
+  private surveyView: SurveyView = "orthophoto";
+  private postAsUploaded = false;
+  private sharedStretch = false;
+  private shown: ShownPair | null = null;
 
   constructor(container: HTMLElement, config: MapConfig) {
     this.map = L.map(container, {
@@ -87,6 +126,26 @@ export class MapView {
     this.swipeBox = this.buildSwipe(container);
     this.renderControls();
     this.map.on("move zoom resize viewreset", () => this.applySwipe());
+    L.control.scale({ metric: true, imperial: false, position: "bottomright", maxWidth: 160 }).addTo(this.map);
+    this.cursorBox = this.addControl("bottomright", "map-cursor");
+    this.cursorBox.setAttribute("aria-live", "off");
+    this.cursorBox.textContent = "Move the pointer over the map for its position";
+    this.map.on("mousemove", (event: L.LeafletMouseEvent) => this.showCursor(event.latlng));
+    this.measure = new MeasureTool(this.map, () =>
+      this.site
+        ? {
+            siteId: this.site.id,
+            comparisonId: this.shown?.comparison?.status === "succeeded" ? this.shown.comparison.id : null,
+            surveyId: this.shown?.post?.status === "ready" ? this.shown.post.id : this.shown?.pre?.status === "ready" ? this.shown.pre.id : null,
+          }
+        : null,
+    );
+  }
+
+  /** Where the pointer is: latitude/longitude and UTM (the site's zone, from its longitude). */
+  private showCursor(at: L.LatLng): void {
+    const lon = L.Util.wrapNum(at.lng, [-180, 180], true);
+    this.cursorBox.innerHTML = `${escapeHtml(formatLatLon(at.lat, lon))}<br>UTM ${escapeHtml(formatUtm(toUtm(at.lat, lon)))}`;
   }
 
   private addControl(position: L.ControlPosition, className: string): HTMLElement {
@@ -104,7 +163,7 @@ export class MapView {
     box.className = "swipe";
     box.hidden = true;
     box.innerHTML = `<div class="swipe-line" aria-hidden="true"></div>
-      <label class="swipe-input"><span class="visually-hidden">Swipe position: pre DSM to the left, post DSM to the right</span>
+      <label class="swipe-input"><span class="visually-hidden">Swipe position: pre survey to the left, post survey to the right</span>
       <input type="range" min="0" max="100" step="1" value="50" id="swipe-range"></label>
       <span class="swipe-tag left" aria-hidden="true">pre</span><span class="swipe-tag right" aria-hidden="true">post</span>`;
     const input = box.querySelector("input") as HTMLInputElement;
@@ -171,8 +230,13 @@ export class MapView {
       .join("");
     // Open on a laptop; folded on a narrow (tablet portrait) screen until asked for.
     const open = (this.controlsBox.querySelector("details") as HTMLDetailsElement | null)?.open ?? window.innerWidth > 900;
-    this.controlsBox.innerHTML = `<details ${open ? "open" : ""}><summary>Layers</summary>${rows}
+    const view = (value: SurveyView, label: string) =>
+      `<label><input type="radio" name="survey-view" value="${value}" ${this.surveyView === value ? "checked" : ""}> ${label}</label>`;
+    this.controlsBox.innerHTML = `<details ${open ? "open" : ""}><summary>Layers</summary>
+      <fieldset class="layer-row survey-view"><legend>Surveys show</legend>${view("orthophoto", "Orthophoto")}${view("dsm", "DSM")}</fieldset>${rows}
       <div class="layer-row"><label><input type="checkbox" id="swipe-toggle" ${this.swipeOn ? "checked" : ""}> Swipe pre | post</label></div>
+      <div class="layer-row"><label><input type="checkbox" id="post-as-uploaded" ${this.postAsUploaded ? "checked" : ""}> Post as uploaded (not co-registered)</label></div>
+      <div class="layer-row"><label><input type="checkbox" id="shared-stretch" ${this.sharedStretch ? "checked" : ""}> One elevation stretch for both DSMs</label></div>
       <button type="button" id="zoom-site">Zoom to site</button></details>`;
     this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-layer]").forEach((input) =>
       input.addEventListener("change", () => this.setVisible(input.dataset.layer as LayerKey, input.checked)),
@@ -184,6 +248,29 @@ export class MapView {
       this.setSwipe((e.target as HTMLInputElement).checked),
     );
     (this.controlsBox.querySelector("#zoom-site") as HTMLButtonElement).addEventListener("click", () => this.zoomToSite());
+    (this.controlsBox.querySelector("#post-as-uploaded") as HTMLInputElement).addEventListener("change", (e) => {
+      this.postAsUploaded = (e.target as HTMLInputElement).checked;
+      void this.redraw();
+    });
+    (this.controlsBox.querySelector("#shared-stretch") as HTMLInputElement).addEventListener("change", (e) => {
+      this.sharedStretch = (e.target as HTMLInputElement).checked;
+      void this.redraw();
+    });
+    this.controlsBox.querySelectorAll<HTMLInputElement>("input[name=survey-view]").forEach((input) =>
+      input.addEventListener("change", () => void this.setSurveyView(input.value as SurveyView)),
+    );
+  }
+
+  /** Show the pre and post surveys as orthophotos (where they have one) or as DSMs. */
+  async setSurveyView(view: SurveyView): Promise<void> {
+    if (view === this.surveyView) return;
+    this.surveyView = view;
+    this.renderControls();
+    await this.redraw();
+  }
+
+  private async redraw(): Promise<void> {
+    if (this.shown) await this.showSurveyLayers(this.shown, this.generation);
   }
 
   zoomToSite(): void {
@@ -228,31 +315,15 @@ export class MapView {
 
   /** The pre and post DSMs, and a comparison's Δh and detections when there is one. */
   async showPair(pair: ShownPair): Promise<DetectionFeature[]> {
+    this.shown = pair;
     const site = this.site as Site;
     const generation = ++this.generation;
-    for (const key of ["pre", "post", "dh", "detections", "cells"] as LayerKey[]) this.groups.get(key)?.clearLayers();
+    for (const key of ["dh", "detections", "cells"] as LayerKey[]) this.groups.get(key)?.clearLayers();
     this.detectionLayers.clear();
     this.legendBox.innerHTML = "";
-    const surveyOwner = (s: Survey | null): Owner | null => (s && s.status === "ready" ? { kind: "surveys", id: s.id } : null);
-    const owners = { pre: surveyOwner(pair.pre), post: surveyOwner(pair.post) };
-    const infos: Record<"pre" | "post", TileJson | null> = { pre: null, post: null };
-    for (const side of ["pre", "post"] as const) {
-      const owner = owners[side];
-      if (owner) infos[side] = await tileJson(site.id, owner, "dsm").catch(() => null);
-    }
+    this.legendBox.append(this.surveyLegends);
+    await this.showSurveyLayers(pair, generation);
     if (generation !== this.generation) return [];
-    const elevation = unionRange([infos.pre?.rescale, infos.post?.rescale]);
-    for (const side of ["pre", "post"] as const) {
-      const owner = owners[side];
-      const info = infos[side];
-      if (!owner || !info) continue;
-      const group = this.groups.get(side) as L.LayerGroup;
-      group.addLayer(productTileLayer(tileTemplate(site.id, owner, "hillshade"), info, side));
-      const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", elevation ?? undefined), info, side);
-      colours.setOpacity(0.6); // the hillshade shows through the elevation colours
-      group.addLayer(colours);
-    }
-    if (elevation) this.legendBox.append(elevationLegend(elevation));
     let features: DetectionFeature[] = [];
     const comparison = pair.comparison;
     if (comparison && comparison.status === "succeeded") {
@@ -271,6 +342,62 @@ export class MapView {
     for (const key of RASTERS) this.setOpacity(key, this.opacity.get(key) ?? 1);
     this.applySwipe();
     return features;
+  }
+
+  /** The pre and post layers (orthophotos or DSMs, the post one co-registered unless asked
+   * otherwise) and their legends; drawn again alone when those choices change. */
+  private async showSurveyLayers(pair: ShownPair, generation: number): Promise<void> {
+    const site = this.site as Site;
+    const surveyOwner = (s: Survey | null): Owner | null => (s && s.status === "ready" ? { kind: "surveys", id: s.id } : null);
+    const owners = { pre: surveyOwner(pair.pre), post: surveyOwner(pair.post) };
+    const done = pair.comparison && pair.comparison.status === "succeeded" ? pair.comparison : null;
+    // The post survey drawn where the comparison put it (the co-registration's correction),
+    // unless asked for as uploaded: both are said in the legend.
+    const corrected = done !== null && !this.postAsUploaded && owners.post !== null;
+    const dsmOwners: Record<"pre" | "post", Owner | null> = {
+      pre: owners.pre,
+      post: corrected && done ? { kind: "comparisons", id: done.id } : owners.post,
+    };
+    const infos: Record<"pre" | "post", TileJson | null> = { pre: null, post: null };
+    const orthophotos: Record<"pre" | "post", TileJson | null> = { pre: null, post: null };
+    for (const side of ["pre", "post"] as const) {
+      const owner = dsmOwners[side];
+      if (!owner) continue;
+      infos[side] = await tileJson(site.id, owner, "dsm").catch(() => null);
+      // A survey made from video or photos has an orthophoto; an uploaded DSM has none (404).
+      const survey = owners[side];
+      if (this.surveyView === "orthophoto" && survey) orthophotos[side] = await tileJson(site.id, survey, "orthophoto").catch(() => null);
+    }
+    if (generation !== this.generation) return;
+    for (const side of ["pre", "post"] as const) this.groups.get(side)?.clearLayers();
+    this.surveyLegends.innerHTML = "";
+    const asDsm = (["pre", "post"] as const).filter((side) => infos[side] && !orthophotos[side]);
+    const shared = unionRange(asDsm.map((side) => infos[side]?.rescale));
+    for (const side of ["pre", "post"] as const) {
+      const owner = dsmOwners[side];
+      const survey = owners[side];
+      const info = infos[side];
+      if (!owner || !survey || !info) continue;
+      const group = this.groups.get(side) as L.LayerGroup;
+      const orthophoto = orthophotos[side];
+      if (orthophoto) {
+        const moved = side === "post" && corrected && done ? `?coregistered_by=${done.id}` : "";
+        group.addLayer(productTileLayer(tileTemplate(site.id, survey, "orthophoto") + moved, orthophoto, side));
+        continue;
+      }
+      // Each DSM in its own stretch by default: two flights metres apart in height would
+      // otherwise each show in half the colours.
+      const range = this.sharedStretch ? shared : info.rescale;
+      group.addLayer(productTileLayer(tileTemplate(site.id, owner, "hillshade"), info, side));
+      const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", range ?? undefined), info, side);
+      colours.setOpacity(0.6); // the hillshade shows through the elevation colours
+      group.addLayer(colours);
+      if (!this.sharedStretch && range) this.surveyLegends.append(elevationLegend(range, side === "pre" ? "Pre DSM" : "Post DSM"));
+    }
+    if (this.sharedStretch && shared && asDsm.length) this.surveyLegends.append(elevationLegend(shared));
+    if (done && owners.post) this.surveyLegends.append(alignmentNote(done, corrected));
+    for (const side of ["pre", "post"] as const) this.setOpacity(side, this.opacity.get(side) ?? 1);
+    this.applySwipe();
   }
 
   private async showDetections(site: Site, comparison: Comparison): Promise<DetectionFeature[]> {
@@ -293,7 +420,10 @@ export class MapView {
       } as L.GeoJSONOptions);
       layer.eachLayer((path) => {
         const polygon = path as L.Path;
-        polygon.bindPopup(() => detectionPopupHtml(feature.id, feature.properties, site.timezone), { maxWidth: 320 });
+        polygon.bindPopup(() => detectionPopupHtml(feature.id, feature.properties, site.timezone, centreOf(polygon)), {
+          maxWidth: 320,
+          autoPanPaddingTopLeft: [10, 70], // clear of the page header on a phone
+        });
         polygon.on("popupopen", (event: L.PopupEvent) => this.wireVerdicts(event.popup, site, comparison, feature));
         this.detectionLayers.set(feature.id, polygon);
       });
@@ -306,6 +436,15 @@ export class MapView {
     const element = popup.getElement();
     if (!element) return;
     (element.querySelector("button[data-verdict]") as HTMLButtonElement | null)?.focus();
+    const copy = element.querySelector<HTMLButtonElement>("button[data-position]");
+    copy?.addEventListener("click", async () => {
+      try {
+        await navigator.clipboard.writeText(copy.dataset.position ?? "");
+        copy.textContent = "Copied";
+      } catch {
+        copy.textContent = "Copy failed: select the text above";
+      }
+    });
     element.querySelectorAll<HTMLButtonElement>("button[data-verdict]").forEach((button) =>
       button.addEventListener("click", async () => {
         const verdict = button.dataset.verdict as Verdict;
@@ -316,7 +455,7 @@ export class MapView {
         const all = await getJson<Array<{ verdict: Verdict }>>(url);
         summary.confirmed = all.filter((f) => f.verdict === "confirmed").length;
         summary.false_alarm = all.filter((f) => f.verdict === "false_alarm").length;
-        popup.setContent(detectionPopupHtml(feature.id, feature.properties, site.timezone));
+        popup.setContent(detectionPopupHtml(feature.id, feature.properties, site.timezone, centreOf(layerOf(popup))));
         this.wireVerdicts(popup, site, comparison, feature);
       }),
     );
