@@ -269,7 +269,8 @@ class Settings(BaseSettings):
     def resolved_api_workers(self) -> int:
         # Tiles are rendered in Python (GIL-bound): one process per core uses them all.
         # At most 4 by default: each process holds its own imports and tile cache.
-        return self.api_workers or max(1, min(os.cpu_count() or 1, 4))
+        # The cores this process may run on (a container's cpuset), not all of the host's.
+        return self.api_workers or max(1, min(len(os.sched_getaffinity(0)), 4))
 
     @property
     def resolved_public_url(self) -> str:

@@ -66,6 +66,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="slidewatch-bomb-") as folder:
         port = free_port()
         env = {**os.environ, "SLIDEWATCH_DATA_DIR": f"{folder}/data", "SLIDEWATCH_SEED_DEMO": "0"}
+        # One process, so that the pid started is the one that reads the upload (with
+        # several, it would be uvicorn's supervisor).
+        env["SLIDEWATCH_API_WORKERS"] = "1"
         if args.without_limits:
             env |= {f"SLIDEWATCH_MAX_RASTER_{name}": str(10**12) for name in LIMITS}
         subprocess.run([slidewatch, "migrate"], env=env, check=True, capture_output=True)

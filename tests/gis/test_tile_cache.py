@@ -241,7 +241,7 @@ def test_if_none_match_lists_and_weak_validators() -> None:
 
 
 def test_the_api_runs_a_process_per_core_by_default() -> None:
-    cores = os.cpu_count() or 1
+    cores = len(os.sched_getaffinity(0))
     assert Settings().resolved_api_workers == max(1, min(cores, 4))
     assert Settings(api_workers=3).resolved_api_workers == 3
     assert SURVEY_LAYERS["dsm"].default_colormap == "terrain"
