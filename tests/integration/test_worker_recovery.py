@@ -141,8 +141,10 @@ def workers(settings: Settings, tmp_path: Path) -> Iterator[Workers]:
     started.stop()
 
 
-def submit_linger(client: TestClient, auth: dict, pair: DsmPairPaths, seconds: float) -> tuple:
-    site, surveys = upload_dsm_pair(client, auth, pair.pre, pair.post, "recovery")
+def queue_linger(
+    client: TestClient, auth: dict, site: int, surveys: list[int], seconds: float
+) -> tuple[int, int]:
+    """A comparison of the site's two surveys with the linger method: (job, comparison)."""
     created = client.post(
         f"/api/v1/sites/{site}/comparisons",
         json={
@@ -155,19 +157,22 @@ def submit_linger(client: TestClient, auth: dict, pair: DsmPairPaths, seconds: f
     )
     assert created.status_code == 202, created.text
     job = created.json()["job"]
-    return site, job["id"], job["comparison_id"]
+    return job["id"], job["comparison_id"]
 
 
 def finished(job: dict) -> bool:
     return job["state"] in ("succeeded", "failed")
 
 
-def test_a_busy_stage_whose_worker_is_killed_runs_again_within_15_s(
+def test_killed_workers_are_replaced_and_their_stage_runs_again_within_15_s(
     settings: Settings, workers: Workers, pair: DsmPairPaths
 ) -> None:
+    """Busy: the stage runs again within 15 s. Idle (the replacement, once the job is
+    done): replaced again, and a job queued right after the kill runs."""
     client, auth = api_client(settings)
     supervisor = workers.start()
-    site, job_id, comparison = submit_linger(client, auth, pair, seconds=2.0)
+    site, surveys = upload_dsm_pair(client, auth, pair.pre, pair.post, "recovery")
+    job_id, comparison = queue_linger(client, auth, site, surveys, seconds=2.0)
     folder = settings.storage_dir / "comparisons" / str(comparison)
     deadline = time.monotonic() + 60
     while not list(folder.glob("tmp*")):  # the stage is busy in its temporary folder
@@ -192,22 +197,16 @@ def test_a_busy_stage_whose_worker_is_killed_runs_again_within_15_s(
     # Killed once, run once more: no attempt ran twice, no other stage ran again.
     attempts = {s["stage"]: s["attempts"] for s in job["stages"]}
     assert attempts == {"align": 1, "coregister": 1, "difference": 1, "linger": 2}
-    assert celery_worker_pid(supervisor) != killed  # replaced by the supervisor
     assert list(folder.glob("tmp*")) == []  # the killed attempt's temporary folder is gone
 
-
-def test_a_killed_idle_worker_process_is_replaced_and_takes_new_jobs(
-    settings: Settings, workers: Workers, pair: DsmPairPaths
-) -> None:
-    client, auth = api_client(settings)
-    supervisor = workers.start()
-    killed = celery_worker_pid(supervisor)
-    os.kill(killed, signal.SIGKILL)
-    site, job_id, _ = submit_linger(client, auth, pair, seconds=0.0)
-    job = wait_for_job(client, auth, site, job_id, finished, timeout_s=60)
-    assert job["state"] == "succeeded", job
-    assert [s["attempts"] for s in job["stages"]] == [1, 1, 1, 1]
-    assert celery_worker_pid(supervisor) != killed
+    replacement = celery_worker_pid(supervisor)  # idle now: its job is done
+    assert replacement != killed
+    os.kill(replacement, signal.SIGKILL)
+    next_job_id, _ = queue_linger(client, auth, site, surveys, seconds=0.0)
+    next_job = wait_for_job(client, auth, site, next_job_id, finished, timeout_s=60)
+    assert next_job["state"] == "succeeded", next_job
+    assert [s["attempts"] for s in next_job["stages"]] == [1, 1, 1, 1]
+    assert celery_worker_pid(supervisor) not in (killed, replacement)
 
 
 def free_port() -> int:
