@@ -38,20 +38,26 @@ def retry_delay_s(retries: int) -> float:
 def run_stage(self: Task, job_id: int, stage: str) -> None:
     context = job_context()
     settings = context.settings
+    claimed: list[int] = []  # the attempt this task claimed, if it got that far
     try:
-        next_stage = execute_stage(context, job_id, stage)
+        next_stage = execute_stage(context, job_id, stage, on_claim=claimed.append)
     except Exception as exc:
+        # Fenced by the claim: a failure of an attempt that another worker took over (this
+        # one was stalled past the stale threshold) neither retries nor fails the stage.
+        attempt = claimed[0] if claimed else None
         reason = f"{type(exc).__name__}: {exc}"
         if self.request.retries >= settings.task_max_retries:
             log.exception("stage %s of job %s failed for good", stage, job_id)
             attempts = self.request.retries + 1
-            fail_job(context, job_id, stage, f"failed after {attempts} attempts: {reason}")
+            reason = f"failed after {attempts} attempts: {reason}"
+            fail_job(context, job_id, stage, reason, attempt)
             return
         delay = retry_delay_s(self.request.retries)
         log.warning(
             "stage %s of job %s failed (%s); retrying in %.0f s", stage, job_id, reason, delay
         )
-        record_retry(context, job_id, stage, reason, delay)
+        if not record_retry(context, job_id, stage, reason, delay, attempt):
+            return
         raise self.retry(exc=exc, countdown=delay, max_retries=settings.task_max_retries) from exc
     if next_stage is not None:
         with context.session_scope() as session:

@@ -1,16 +1,21 @@
-"""The recovery sweep queues again what was lost, once, and leaves waiting stages alone."""
+"""The recovery sweep queues again what was lost, once, and leaves waiting stages alone; a
+stage's claim is fenced, so that an attempt taken over cannot touch the one running now."""
 
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
+from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
+from backend.config import Settings
 from backend.db.models import Job, JobState, StageRun, StageState
 from backend.db.session import make_engine
 from tests.databases import migrate_new_database
+from worker.jobs.context import JobContext
 from worker.jobs.recovery import stalled_stages
+from worker.jobs.runner import _claim, fail_job, record_retry
 
 NOW = datetime(2026, 11, 26, 12, 0, tzinfo=UTC)
 
@@ -20,10 +25,16 @@ def ago(seconds: float) -> datetime:
 
 
 @pytest.fixture
-def session(tmp_path: Path) -> Iterator[Session]:
-    url = f"sqlite:///{tmp_path / 'sweep.db'}"
-    migrate_new_database(url)
-    with Session(make_engine(url)) as session:
+def settings(tmp_path: Path) -> Settings:
+    settings = Settings(data_dir=tmp_path / "data")
+    settings.data_dir.mkdir(parents=True)
+    migrate_new_database(settings.resolved_database_url)
+    return settings
+
+
+@pytest.fixture
+def session(settings: Settings) -> Iterator[Session]:
+    with Session(make_engine(settings.resolved_database_url)) as session:
         yield session
 
 
@@ -58,3 +69,30 @@ def test_a_waiting_stage_is_queued_again_only_once_its_message_is_lost(session: 
     assert retry_later not in {j for j, _ in passed}
     # A message sent just before the sweep's may still be on its way to its claim.
     assert waiting not in {j for j, _ in stalled_stages(session, 8, NOW, 300, ago(59.5))}
+
+
+def test_an_attempt_taken_over_cannot_retry_or_fail_the_one_running_now(
+    settings: Settings, session: Session
+) -> None:
+    job_id = job(session, StageState.running, queued_at=ago(60), heartbeat_at=ago(3))
+    session.commit()
+    run = session.scalar(select(StageRun).where(StageRun.job_id == job_id))
+    now = datetime.now(UTC)
+    assert _claim(session, run.id, now, 8) is None  # alive: nobody takes it
+    session.execute(update(StageRun).values(heartbeat_at=now - timedelta(seconds=9)))
+    assert _claim(session, run.id, now, 8) == 2  # its worker is dead: attempt 2 takes it
+    session.commit()
+
+    context = JobContext.from_settings(settings)
+    # Attempt 1 was only stalled, and now fails: neither a retry nor a failure is recorded.
+    assert not record_retry(context, job_id, "train", "boom", 2.0, attempt=1)
+    fail_job(context, job_id, "train", "boom", attempt=1)
+    session.expire_all()
+    run, owner = session.get(StageRun, run.id), session.get(Job, job_id)
+    assert (run.state, run.attempts, owner.state) == (
+        StageState.running, 2, JobState.running
+    )  # fmt: skip
+    # The attempt running now may fail as any does.
+    assert record_retry(context, job_id, "train", "boom", 2.0, attempt=2)
+    session.expire_all()
+    assert session.get(StageRun, run.id).state == StageState.pending

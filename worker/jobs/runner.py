@@ -17,6 +17,7 @@ stage runs, the temporaries a killed attempt left in the job's folder are remove
 import logging
 import threading
 import time
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -178,11 +179,17 @@ class _Heartbeat:
                 log.warning("heartbeat of stage run %s failed", self.run_id, exc_info=True)
 
 
-def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
+def execute_stage(
+    context: JobContext,
+    job_id: int,
+    stage: str,
+    on_claim: Callable[[int], None] | None = None,
+) -> str | None:
     """Run `stage` of job `job_id` if it is not done; return the stage to queue next.
 
-    Raises what the stage raised for transient failures (the caller retries); input
-    errors fail the job at once with the error's message as the reason.
+    Raises what the stage raised for transient failures (the caller retries, passing the
+    attempt that `on_claim` was given to `record_retry` or `fail_job`); input errors fail
+    the job at once with the error's message as the reason.
     """
     from worker.pipeline.errors import InputError
 
@@ -202,6 +209,8 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
         attempt = _claim(session, run.id, now, context.settings.stale_stage_after_s)
         if attempt is None:
             return None  # a live worker has it
+        if on_claim is not None:
+            on_claim(attempt)
         if job.state == JobState.queued:
             job.state = JobState.running
             job.started_at = now
@@ -218,7 +227,7 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
             result = kind.run_stage(stage, inputs, heartbeat.report)
     except InputError as exc:
         _keep_log(context, run_id, captured.lines)
-        fail_job(context, job_id, stage, str(exc))
+        fail_job(context, job_id, stage, str(exc), attempt)
         return None
     except Exception as exc:
         # The caller retries or fails the stage; what it logged is kept either way.
@@ -263,21 +272,51 @@ def execute_stage(context: JobContext, job_id: int, stage: str) -> str | None:
         return following.stage
 
 
-def record_retry(context: JobContext, job_id: int, stage: str, error: str, delay_s: float) -> None:
-    """A transient failure: the stage goes back to pending until its retry is delivered."""
+def _taken_over(run: StageRun, attempt: int | None) -> bool:
+    """A failure of `attempt` that must not touch the stage: another attempt has it now."""
+    if attempt is None or (run.state == StageState.running and run.attempts == attempt):
+        return False
+    log.warning(
+        "stage %s of job %s: attempt %s failed after it was taken over; ignored",
+        run.stage,
+        run.job_id,
+        attempt,
+    )
+    return True
+
+
+def record_retry(
+    context: JobContext,
+    job_id: int,
+    stage: str,
+    error: str,
+    delay_s: float,
+    attempt: int | None = None,
+) -> bool:
+    """A transient failure: the stage goes back to pending until its retry is delivered.
+
+    False, and nothing recorded, when `attempt` (the failed one's claim) was taken over:
+    the attempt running now is not to be retried."""
     with context.session_scope() as session:
         run = _stage_run(session, job_id, stage)
-        if run is not None and run.state != StageState.succeeded:
+        if run is None or _taken_over(run, attempt):
+            return False
+        if run.state != StageState.succeeded:
             run.state = StageState.pending
             run.error = f"attempt {run.attempts} failed, retrying in {delay_s:.0f} s: {error}"
             run.queued_at = utcnow() + timedelta(seconds=delay_s)
             _append_log(run, [log_line("WARNING", run.error)])
+        return True
 
 
-def fail_job(context: JobContext, job_id: int, stage: str, reason: str) -> None:
+def fail_job(
+    context: JobContext, job_id: int, stage: str, reason: str, attempt: int | None = None
+) -> None:
+    """The job fails at `stage` (unless `attempt`, the failed one's claim, was taken over:
+    the attempt running now may yet succeed)."""
     with context.session_scope() as session:
         run = _stage_run(session, job_id, stage)
-        if run is None:
+        if run is None or _taken_over(run, attempt):
             return
         job = run.job
         run.state = StageState.failed
