@@ -91,3 +91,17 @@ class MapConfig(BaseModel):
     upload_chunk_bytes: int
     max_upload_bytes: int
     version: str
+
+
+class DetectionHistoryOut(BaseModel):
+    comparison_id: int
+    detection_id: int
+    pre_captured_at: datetime
+    post_captured_at: datetime
+    area_m2: float
+    volume_loss_m3: float
+    volume_gain_m3: float
+    max_abs_dh_m: float
+    score: float
+    overlap: float = Field(description="Share of the asked detection's area this one covers.")
+    this: bool = Field(description="True for the asked detection itself.")

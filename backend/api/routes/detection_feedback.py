@@ -4,6 +4,7 @@ PUT    /sites/{site_id}/comparisons/{comparison_id}/detections/{detection_id}/fe
 GET    /sites/{site_id}/comparisons/{comparison_id}/detections/{detection_id}/feedback
 DELETE /sites/{site_id}/comparisons/{comparison_id}/detections/{detection_id}/feedback
 GET    /sites/{site_id}/training-labels      GeoJSON, one feature per verdict
+GET    /sites/{site_id}/comparisons/{comparison_id}/detections/{detection_id}/history
 """
 
 from fastapi import APIRouter, HTTPException, Response, status
@@ -12,9 +13,10 @@ from fastapi.responses import JSONResponse
 from backend.api.access import SignedIn, SiteAnalyst, SiteViewer
 from backend.api.deps import SessionDep
 from backend.api.routes.comparisons import comparison_of_site
-from backend.api.schemas_map import FeedbackIn, FeedbackOut
+from backend.api.schemas_map import DetectionHistoryOut, FeedbackIn, FeedbackOut
 from backend.db.models import Detection, DetectionFeedback, Site
 from backend.ids import RowId
+from backend.services.detection_history import detection_history
 from backend.services.feedback import give_verdict, training_labels, withdraw_verdict
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["feedback on detections"])
@@ -85,3 +87,18 @@ def get_training_labels(site: SiteViewer, session: SessionDep) -> JSONResponse:
         media_type="application/geo+json",
         headers={"Content-Disposition": f'attachment; filename="site-{site.id}-labels.geojson"'},
     )
+
+
+@router.get(
+    f"{DETECTION}/history",
+    response_model=list[DetectionHistoryOut],
+    summary="The same ground in the site's other comparisons: a landslide over time",
+)
+def get_history(
+    comparison_id: RowId, detection_id: RowId, site: SiteViewer, session: SessionDep
+) -> list[DetectionHistoryOut]:
+    """This detection and every detection of the site's other comparisons whose polygon
+    overlaps it, in the order of their post surveys, with the share of this detection's
+    area each covers."""
+    detection = detection_of(session, site, comparison_id, detection_id)
+    return [DetectionHistoryOut(**vars(entry)) for entry in detection_history(session, detection)]
