@@ -454,4 +454,3 @@ def assert_orthophoto_tiles(
         headers=auth,
     )
     assert refused.status_code == 422 and "orthophoto" in refused.json()["detail"]
-

@@ -323,9 +323,7 @@ def video_view_images(
             j = int(np.searchsorted(wanted, t))
             return any(0 <= k < wanted.size and abs(wanted[k] - t) <= tol for k in (j - 1, j))
 
-        for frame in VideoReader(video).frames(
-            size=(width, height), gray=False, wanted=is_wanted
-        ):
+        for frame in VideoReader(video).frames(size=(width, height), gray=False, wanted=is_wanted):
             j = int(np.argmin(np.abs(keys - frame.t)))
             yield index_of[float(keys[j])], frame.image
 
@@ -481,9 +479,7 @@ def _write(
         views = select_views(sparse, options.view_spacing * footprint_m)
         # The DSM's own height range bounds the footprints.
         stats = dsm.src.read(1, out_shape=(64, 64), masked=True).compressed()
-        z_range = (
-            (float(stats.min()), float(stats.max())) if stats.size else (ground, ground)
-        )
+        z_range = (float(stats.min()), float(stats.max())) if stats.size else (ground, ground)
         bounds_of: dict[int, tuple[float, float, float, float]] = {}
         for kf in views.tolist():
             b = _footprint_bounds(camera, sparse.kf_r[kf], sparse.kf_tr[kf], z_range)
@@ -624,9 +620,7 @@ def _render(
         "photometric": "RGB",
     }
     plain_path = scratch / "orthophoto.tif"
-    tiles = [
-        (row, col) for row in range(0, height, tile) for col in range(0, width, tile)
-    ]
+    tiles = [(row, col) for row in range(0, height, tile) for col in range(0, width, tile)]
     with rasterio.open(plain_path, "w", **profile) as dst:
         dst.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
         for done, (row, col) in enumerate(tiles):

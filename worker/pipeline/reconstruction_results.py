@@ -157,4 +157,3 @@ class OrthophotoStageResult(ReconstructionStageResult):
     orthophoto: dict[str, Any] | None = None
     warnings: list[str] = field(default_factory=list)
     seconds: float
-
