@@ -74,3 +74,21 @@ def test_bad_geometries_are_refused_naming_what_is_wrong(
     assert refused.status_code == 422 and "outside" in refused.json()["detail"]
     line = {"type": "LineString", "coordinates": [[1, 1]]}
     assert client.post(f"{url}/profile", json={"line": line}, headers=auth).status_code == 422
+
+
+def test_heights_under_the_cursor_on_a_detection(
+    client: TestClient, auth: dict, compared: tuple[str, dict]
+) -> None:
+    url, detection = compared
+    point = shape(detection["geometry"]).representative_point()
+    answer = client.get(f"{url}/heights", params={"lon": point.x, "lat": point.y}, headers=auth)
+    assert answer.status_code == 200, answer.text
+    heights = answer.json()
+    assert set(heights) == {"pre", "post", "dh"}
+    assert heights["dh"] == pytest.approx(heights["post"] - heights["pre"], abs=0.05)
+    assert abs(heights["dh"]) > 0.1  # inside the landslide
+    off_site = client.get(f"{url}/heights", params={"lon": 0.0, "lat": 0.0}, headers=auth)
+    assert off_site.json() == {"pre": None, "post": None, "dh": None}
+    assert (
+        client.get(f"{url}/heights", params={"lon": 200, "lat": 0}, headers=auth).status_code == 422
+    )

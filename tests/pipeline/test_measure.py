@@ -9,7 +9,7 @@ from pyproj import Transformer
 from rasterio.transform import from_origin
 
 from worker.pipeline.errors import InputError
-from worker.pipeline.measure import elevation_profile, polygon_volume
+from worker.pipeline.measure import elevation_profile, heights_at, polygon_volume
 
 CRS = "EPSG:32654"
 ORIGIN = (419300.0, 3990900.0)  # west, north
@@ -86,3 +86,11 @@ def test_bad_geometries_are_refused_with_the_reason(tmp_path: Path) -> None:
         elevation_profile({"type": "LineString", "coordinates": [[1, 1], [1, 1]]}, {"d": path})
     with pytest.raises(InputError, match="not valid GeoJSON"):
         elevation_profile({"type": "LineString", "coordinates": "x"}, {"d": path})
+
+
+def test_heights_under_the_cursor(tmp_path: Path) -> None:
+    cols = np.arange(200) * RES + RES / 2
+    pre = write(tmp_path / "pre.tif", np.tile(100.0 + 0.1 * cols, (120, 1)))
+    (lon, lat), (far_lon, far_lat) = lonlat((20.0, 30.0), (500.0, 30.0))
+    assert heights_at(lon, lat, {"pre": pre}) == {"pre": pytest.approx(102.0, abs=0.01)}
+    assert heights_at(far_lon, far_lat, {"pre": pre}) == {"pre": None}

@@ -196,3 +196,16 @@ def _overlaps(window: Window, src: rasterio.io.DatasetReader) -> bool:
         and window.col_off + window.width > 0
         and window.row_off + window.height > 0
     )
+
+
+def heights_at(lon: float, lat: float, rasters: dict[str, Path]) -> dict[str, float | None]:
+    """Each raster's value at one WGS84 point (bilinear between cells; None outside it or
+    in its nodata): what the map shows under the cursor."""
+    out: dict[str, float | None] = {}
+    for name, path in rasters.items():
+        with rasterio.open(path) as src:
+            crs = src.crs
+        to = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+        x, y = to.transform(lon, lat)
+        out[name] = _sample_bilinear(path, np.array([[x, y]]), crs)[0]
+    return out

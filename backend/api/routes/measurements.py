@@ -5,8 +5,9 @@ Read-only, so a viewer of the site may make them. The work is the library's
 """
 
 from pathlib import Path
+from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Query, status
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.access import SiteViewer
@@ -24,7 +25,7 @@ from backend.ids import RowId
 from backend.services.comparisons import stage_results
 from backend.storage import LocalStorage
 from worker.pipeline.errors import InputError
-from worker.pipeline.measure import elevation_profile, polygon_volume
+from worker.pipeline.measure import elevation_profile, heights_at, polygon_volume
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["measurements"])
 
@@ -118,3 +119,47 @@ async def comparison_volume(
     except InputError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     return VolumeOut(**volume.to_dict())
+
+
+Longitude = Annotated[float, Query(ge=-180, le=180, description="WGS84 longitude")]
+Latitude = Annotated[float, Query(ge=-90, le=90, description="WGS84 latitude")]
+
+
+@router.get(
+    "/comparisons/{comparison_id}/heights",
+    summary="Pre, co-registered post and Δh at one point (null where a raster has none)",
+)
+async def comparison_heights(
+    comparison_id: RowId,
+    lon: Longitude,
+    lat: Latitude,
+    site: SiteViewer,
+    session: SessionDep,
+    storage: StorageDep,
+) -> dict[str, float | None]:
+    comparison = comparison_of_site(session, site, comparison_id)
+    rasters = {
+        "pre": _product_path(storage, comparison.pre_survey.products, "dsm"),
+        "post": _product_path(storage, comparison.products, "post_coregistered"),
+        "dh": _product_path(storage, comparison.products, "dh"),
+    }
+    found = {name: path for name, path in rasters.items() if path is not None}
+    values = await run_in_threadpool(heights_at, lon, lat, found)
+    return {name: values.get(name) for name in rasters}
+
+
+@router.get(
+    "/surveys/{survey_id}/heights",
+    summary="A survey's DSM height at one point (null outside it)",
+)
+async def survey_heights(
+    survey_id: RowId,
+    lon: Longitude,
+    lat: Latitude,
+    site: SiteViewer,
+    session: SessionDep,
+    storage: StorageDep,
+) -> dict[str, float | None]:
+    survey = owned_by_site(session, Survey, site, survey_id, "survey")
+    dsm = _need(_product_path(storage, survey.products, "dsm"), f"survey {survey_id}'s DSM")
+    return await run_in_threadpool(heights_at, lon, lat, {"dsm": dsm})
