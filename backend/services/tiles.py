@@ -252,28 +252,38 @@ def _overview_factor(dataset: DatasetReader, wanted: float) -> int:
     return factor
 
 
-def tile_read_pixels(
-    dataset: DatasetReader, z: int, x: int, y: int, buffer: int = 0, factor_only: bool = False
-) -> int:
-    """How many pixels of `dataset` a tile's read decodes: the tile's footprint in the file
-    at the overview level that GDAL picks for it (an upper bound: whole blocks are read,
-    but the footprint is what grows without bound as one zooms out)."""
-    tile_bounds = TMS.xy_bounds(morecantile.Tile(x, y, z))
+def _tile_read(dataset: DatasetReader, z: int, x: int, y: int, buffer: int) -> tuple[int, int]:
+    """The pixels of `dataset` that tile z/x/y (and `buffer` pixels around it) decodes, and
+    the overview decimation it reads them at: the tile's footprint in the file at the level
+    GDAL picks for the tile's resolution. Whole blocks are decoded, a little more; but the
+    footprint is what grows without bound as one zooms out of a file without overviews."""
+    west, south, east, north = TMS.xy_bounds(morecantile.Tile(x, y, z))
+    margin = buffer * (east - west) / TILE_SIZE
     left, bottom, right, top = transform_bounds(
-        WEB_MERCATOR, dataset.crs, *tile_bounds, densify_pts=21
+        WEB_MERCATOR,
+        dataset.crs,
+        west - margin,
+        south - margin,
+        east + margin,
+        north + margin,
+        densify_pts=21,
+    )
+    res_x, res_y = abs(dataset.res[0]), abs(dataset.res[1])
+    size = TILE_SIZE + 2 * buffer
+    factor = _overview_factor(
+        dataset, min((right - left) / size / res_x, (top - bottom) / size / res_y)
     )
     d_left, d_bottom, d_right, d_top = dataset.bounds
     width = min(right, d_right) - max(left, d_left)
     height = min(top, d_top) - max(bottom, d_bottom)
-    if (width <= 0 or height <= 0) and not factor_only:
-        return 0
-    res_x, res_y = abs(dataset.res[0]), abs(dataset.res[1])
-    wanted = min((right - left) / (TILE_SIZE + 2 * buffer) / res_x,
-                 (top - bottom) / (TILE_SIZE + 2 * buffer) / res_y)  # fmt: skip
-    factor = _overview_factor(dataset, wanted)
-    if factor_only:
-        return factor
-    return math.ceil(width / res_x / factor) * math.ceil(height / res_y / factor)
+    if width <= 0 or height <= 0:
+        return 0, factor
+    return math.ceil(width / res_x / factor) * math.ceil(height / res_y / factor), factor
+
+
+def tile_read_pixels(dataset: DatasetReader, z: int, x: int, y: int, buffer: int = 0) -> int:
+    """How many pixels of `dataset` tile z/x/y decodes (see `_tile_read`)."""
+    return _tile_read(dataset, z, x, y, buffer)[0]
 
 
 class _ReaderPool:
@@ -325,20 +335,27 @@ _READERS = _ReaderPool()
 
 
 def _warp_tile(
-    path: Path, dataset: DatasetReader, z: int, x: int, y: int, buffer: int, method: str
+    path: Path,
+    dataset: DatasetReader,
+    z: int,
+    x: int,
+    y: int,
+    buffer: int,
+    method: str,
+    factor: int,
 ) -> ImageData:
     """Tile z/x/y (with `buffer` pixels around it) warped straight from the file into its
-    256 px grid, from the overview level GDAL would choose: GDAL warps only the tile's
-    pixels, where a WarpedVRT read (rio-tiler's way) warps the whole footprint at the
-    file's resolution and then resamples it to the tile, twice the time for a tile
-    coarser than the file. Needs the file's nodata (our products all have one)."""
+    256 px grid, from the overview of decimation `factor` (the one GDAL would choose):
+    GDAL warps only the tile's pixels, where a WarpedVRT read (rio-tiler's way) warps the
+    whole footprint at the file's resolution and then resamples it to the tile, twice the
+    time for a tile coarser than the file. Needs the file's nodata (our products all have
+    one)."""
     size = TILE_SIZE + 2 * buffer
     left, bottom, right, top = TMS.xy_bounds(morecantile.Tile(x, y, z))
     pixel_x, pixel_y = (right - left) / TILE_SIZE, (top - bottom) / TILE_SIZE
     transform = Affine(pixel_x, 0, left - buffer * pixel_x, 0, -pixel_y, top + buffer * pixel_y)
-    native = tile_read_pixels(dataset, z, x, y, buffer, factor_only=True)
     levels = dataset.overviews(1)
-    level = levels.index(native) if native in levels else None
+    level = levels.index(factor) if factor in levels else None
     nodata = dataset.nodata
     warped = np.full((size, size), nodata, dtype=dataset.dtypes[0])
     with _READERS.reader(path, level) as source:
@@ -387,11 +404,11 @@ def render_tile(
     with _READERS.reader(path) as reader:
         if not reader.tile_exists(x, y, z):
             raise TileOutsideBounds(f"Tile(x={x}, y={y}, z={z}) is outside bounds")
-        pixels = tile_read_pixels(reader.dataset, z, x, y, buffer)
+        pixels, factor = _tile_read(reader.dataset, z, x, y, buffer)
         if pixels > max_read_pixels:
             raise TileTooCostly(pixels, max_read_pixels)
         if reader.dataset.nodata is not None:
-            img = _warp_tile(path, reader.dataset, z, x, y, buffer, method)
+            img = _warp_tile(path, reader.dataset, z, x, y, buffer, method, factor)
         else:
             img = reader.tile(
                 x,
