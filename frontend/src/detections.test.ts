@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { detectionPopupHtml, detectionStyle, scoreColor, withInterval } from "./detections";
+import { detectionPopupHtml, detectionStyle, type HistoryEntry, historyHtml, scoreColor, withInterval } from "./detections";
 import { formatArea, formatVolume } from "./format";
 import type { DetectionProperties } from "./types";
 
@@ -75,5 +75,21 @@ describe("a detection's position", () => {
     expect(html).toContain("UTM 54N 329179.5 E 3992967.1 N");
     expect(html).toContain('data-position="36.066300° N, 139.103200° E (UTM 54N 329179.5 E 3992967.1 N)"');
     expect(detectionPopupHtml(2, props, "UTC")).not.toContain("Copy position");
+  });
+});
+
+describe("a detection's history", () => {
+  const entry = (id: number, post: string, area: number, self: boolean): HistoryEntry => ({
+    comparison_id: id, detection_id: id * 10, pre_captured_at: "2026-06-01T10:00:00Z", post_captured_at: post,
+    area_m2: area, volume_loss_m3: area / 2, volume_gain_m3: 0, max_abs_dh_m: 2, score: 1, overlap: self ? 1 : 0.85, this: self,
+  });
+  it("lists the same ground in time order, this comparison marked", () => {
+    const html = historyHtml([entry(1, "2026-07-01T10:00:00Z", 2000, true), entry(2, "2026-08-01T10:00:00Z", 2600, false)], "UTC");
+    expect(html).toContain("1 Jul 2026 (this one)");
+    expect(html).toContain("2,600 m²");
+    expect(html).toContain("85 %");
+  });
+  it("says when nothing else was found there", () => {
+    expect(historyHtml([entry(1, "2026-07-01T10:00:00Z", 2000, true)], "UTC")).toContain("No other comparison");
   });
 });

@@ -1,6 +1,6 @@
 // How detections look on the map and what their popup says.
 
-import { escapeHtml, formatArea, formatDateTime, formatMetres, formatVolume } from "./format";
+import { escapeHtml, formatArea, formatDate, formatDateTime, formatMetres, formatVolume } from "./format";
 import type { DetectionProperties } from "./types";
 import { formatLatLon, formatUtm, toUtm } from "./map/utm";
 
@@ -89,6 +89,8 @@ export function detectionPopupHtml(
       <h3>Detection ${id}</h3>
       <table>${rows.map(([k, v]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(v)}</td></tr>`).join("")}</table>
       ${position ? positionHtml(position) : ""}
+      <p><button type="button" data-history>History of this ground</button></p>
+      <div data-role="history" aria-live="polite"></div>
       <p class="verdict">Verdict: <span data-role="verdict">${escapeHtml(verdict)}</span>
         (${p.feedback?.confirmed ?? 0} confirmed, ${p.feedback?.false_alarm ?? 0} false alarm)</p>
       <div class="verdict-buttons">
@@ -106,3 +108,32 @@ export function positionHtml([lat, lon]: [number, number]): string {
     formatUtm(toUtm(lat, lon)),
   )}<br><button type="button" data-position="${escapeHtml(text)}">Copy position</button></p>`;
 }
+
+/** One detection of the same ground in another comparison (GET …/detections/{id}/history). */
+export interface HistoryEntry {
+  comparison_id: number;
+  detection_id: number;
+  pre_captured_at: string;
+  post_captured_at: string;
+  area_m2: number;
+  volume_loss_m3: number;
+  volume_gain_m3: number;
+  max_abs_dh_m: number;
+  score: number;
+  overlap: number;
+  this: boolean;
+}
+
+/** The detection's ground over time: one row per comparison that found something there. */
+export function historyHtml(entries: HistoryEntry[], timeZone: string): string {
+  if (entries.length <= 1) return `<p class="muted">No other comparison of this site found a change here.</p>`;
+  const rows = entries
+    .map(
+      (e) => `<tr${e.this ? ' class="this"' : ""}><td>${escapeHtml(formatDate(e.pre_captured_at, timeZone))} → ${escapeHtml(
+        formatDate(e.post_captured_at, timeZone),
+      )}${e.this ? " (this one)" : ""}</td><td>${escapeHtml(formatArea(e.area_m2))}</td><td>${escapeHtml(formatVolume(e.volume_loss_m3))}</td><td>${Math.round(e.overlap * 100)} %</td></tr>`,
+    )
+    .join("");
+  return `<table class="history"><thead><tr><th scope="col">Surveys</th><th scope="col">Area</th><th scope="col">Lost</th><th scope="col">Overlap</th></tr></thead><tbody>${rows}</tbody></table>`;
+}
+

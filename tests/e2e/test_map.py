@@ -103,7 +103,9 @@ def test_sign_in_upload_compare_and_read_the_map(
     expect(page.locator("[data-legend=elevation-post]")).to_contain_text(" m")
     expect(page.locator("[data-legend=dh]")).to_contain_text("0 m")
     note = page.locator("[data-legend=alignment]")
-    expect(note).to_contain_text(re.compile(r"Post shown co-registered onto pre: post moved .* m E"))
+    expect(note).to_contain_text(
+        re.compile(r"Post shown co-registered onto pre: post moved .* m E")
+    )
     # The post hillshade comes from the comparison's co-registered DSM ...
     assert any("/comparisons/" in url for url in tile_requests(page, clear=True))
     page.get_by_label("Post as uploaded (not co-registered)").check()
@@ -120,6 +122,10 @@ def test_sign_in_upload_compare_and_read_the_map(
     # Where the pointer is, and the scale.
     page.locator("#map").hover()
     expect(page.locator(".map-cursor")).to_contain_text(re.compile(r"° [NS], .*UTM \d+[NS]"))
+    # ... and the heights there once it rests: pre, co-registered post and their difference.
+    expect(page.locator(".map-cursor")).to_contain_text(
+        re.compile(r"Pre [\d,.]+ m · Post [\d,.]+ m · Δh")
+    )
     expect(page.locator(".leaflet-control-scale-line")).to_contain_text(" m")
     assert drawn_pixels(page, "detections") > 100
     page.get_by_role("button", name="Zoom to site").click()
@@ -138,6 +144,10 @@ def test_sign_in_upload_compare_and_read_the_map(
         expect(popup).to_contain_text(text)
     expect(popup).to_contain_text("Model version")
     shot(page, "detection-popup", "map-popup")
+    # The same ground in the site's other comparisons: none yet.
+    popup.get_by_role("button", name="History of this ground").click()
+    expect(popup.locator("[data-role=history]")).to_contain_text("No other comparison")
+    expect(popup).to_contain_text(re.compile(r"Centre: [\d.]+° N, [\d.]+° E"))
     popup.get_by_role("button", name="Confirm landslide").click()
     expect(popup.locator("[data-role=verdict]")).to_contain_text("confirmed landslide by maria")
     page.locator(".leaflet-popup-close-button").click()
@@ -175,6 +185,18 @@ def test_sign_in_upload_compare_and_read_the_map(
     page.get_by_label("Post survey opacity (%)").fill("40")
     assert page.locator(".leaflet-post-pane").evaluate("e => e.style.opacity") == "0.4"
 
+    # Stepping through the site's surveys in time, one at a time.
+    page.get_by_text("Time", exact=True).click()
+    page.get_by_label("Step through the 2 ready surveys").check()
+    time_label = page.locator(".map-time .time-label")
+    expect(time_label).to_contain_text("July flight · 1 Jul 2026 (2 of 2)")
+    page.get_by_label("Survey shown").press("ArrowLeft")
+    expect(time_label).to_contain_text("June flight · 1 Jun 2026 (1 of 2)")
+    expect(page.locator(".leaflet-post-pane img.leaflet-tile-loaded").first).to_be_attached()
+    expect(page.locator(".leaflet-pre-pane img")).to_have_count(0)  # one survey alone
+    page.get_by_label("Step through the 2 ready surveys").uncheck()
+    expect(page.locator(".leaflet-pre-pane img.leaflet-tile-loaded").first).to_be_attached()
+
     # Measuring: a distance, a profile across the site and the volume inside an area.
     page.get_by_label("Swipe pre | post").uncheck()
     page.get_by_role("checkbox", name="Detections", exact=True).set_checked(False)
@@ -208,6 +230,27 @@ def test_sign_in_upload_compare_and_read_the_map(
     expect(result).to_contain_text("m³")
     expect(result).to_contain_text("LoD (95 %)")
     shot(page, "map-measure-volume", "map-measure-volume")
+
+    # On a phone: the legend folded, a swipe slider a thumb can hold, a popup clear of the
+    # page header.
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.reload()
+    expect(page.get_by_role("button", name="Detection 1")).to_be_visible(timeout=30_000)
+    assert not page.locator(".map-legends details").evaluate("e => e.open")
+    page.get_by_text("Layers", exact=True).click()
+    page.get_by_label("Swipe pre | post").check()
+    slider = page.get_by_label(re.compile("Swipe position")).bounding_box()
+    assert slider is not None and slider["width"] > 300, slider
+    page.get_by_text("Layers", exact=True).click()
+    page.get_by_role("button", name="Detection 1").click()
+    page.wait_for_timeout(500)  # the map's pan to the popup
+    popup_box = page.locator(".leaflet-popup").bounding_box()
+    header = page.locator("header").first.bounding_box()
+    assert popup_box is not None and header is not None
+    # Wholly in view: below the header (where it is still on screen) and above the bottom.
+    assert popup_box["y"] >= max(0.0, header["y"] + header["height"]) - 1, (popup_box, header)
+    assert popup_box["y"] + popup_box["height"] <= 844 + 1, popup_box
+    shot(page, "map-phone", "map-phone")
 
 
 def test_a_cut_connection_and_a_reload_resume_the_upload(
@@ -434,7 +477,14 @@ def test_a_video_survey_is_processed_while_it_uploads(
         expect(mark.locator("li")).to_have_count(len(quality["checks"]))
     else:
         expect(mark).to_have_count(0)
-    shot(page, "video-survey-processed")
+    # On the map, the survey shows as its orthophoto, in colour.
+    page.wait_for_function(
+        """() => performance.getEntriesByType("resource")
+            .some((e) => e.name.includes("/tiles/orthophoto/") && e.name.endsWith(".png"))""",
+        timeout=30_000,
+    )
+    expect(page.locator(".leaflet-post-pane img.leaflet-tile-loaded").first).to_be_attached()
+    shot(page, "video-survey-processed", "map-orthophoto")
 
 
 def test_a_reload_during_a_processed_video_upload_resumes_it(

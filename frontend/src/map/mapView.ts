@@ -7,8 +7,8 @@ import L from "leaflet";
 import "leaflet/dist/leaflet.css";
 import { authHeaders, getJson, putJson } from "../api";
 import { symmetricRange, unionRange } from "../colormap";
-import { cellStyle, detectionPopupHtml, detectionStyle } from "../detections";
-import { escapeHtml, formatDate } from "../format";
+import { cellStyle, detectionPopupHtml, detectionStyle, type HistoryEntry, historyHtml } from "../detections";
+import { escapeHtml, formatDate, formatMetres } from "../format";
 import type { Comparison, DetectionFeature, MapConfig, Product, Site, Survey, TileJson, Verdict } from "../types";
 import { correctionText } from "./alignment";
 import { differenceLegend, elevationLegend, scoreLegend } from "./legend";
@@ -16,6 +16,12 @@ import { MeasureTool } from "./measure";
 import { swipeClips } from "./swipe";
 import { type Owner, productTileLayer, tileJson, tileTemplate } from "./tiles";
 import { formatLatLon, formatUtm, toUtm } from "./utm";
+
+/** Marks a legend with the layers it explains (it hides while they are all off). */
+function forLayers(legend: HTMLElement, ...keys: LayerKey[]): HTMLElement {
+  legend.dataset.layers = keys.join(" ");
+  return legend;
+}
 
 /** What the map did with the post survey: moved by the comparison's correction, or not. */
 function alignmentNote(comparison: Comparison, corrected: boolean): HTMLElement {
@@ -82,13 +88,16 @@ export class MapView {
     ["dh", 0.85],
   ]);
   private readonly legendBox: HTMLElement;
+  private readonly legendControl: HTMLElement;
   private readonly controlsBox: HTMLElement;
   private readonly swipeBox: HTMLElement;
   private readonly cursorBox: HTMLElement;
+  private heightsTimer: number | undefined;
   // The pre and post layers' legends, first in the legend box.
   private readonly surveyLegends = document.createElement("div");
   readonly measure: MeasureTool;
   private swipeOn = false;
+  private hiddenForSwipe: LayerKey[] = [];
   private swipeFraction = 0.5;
   private siteBounds: L.LatLngBounds | null = null;
   private detectionLayers = new Map<number, L.Path>();
@@ -98,6 +107,10 @@ export class MapView {
   // upload) shows its DSM either way.
   private surveyView: SurveyView = "orthophoto";
   private postAsUploaded = false;
+  // Stepping through the site's surveys in time: the index of the one shown alone, or null.
+  private timeIndex: number | null = null;
+  private readySurveys: Survey[] = [];
+  private readonly timeBox: HTMLElement;
   private sharedStretch = false;
   private shown: ShownPair | null = null;
 
@@ -122,7 +135,10 @@ export class MapView {
     }
     this.map.setView([0, 0], 2);
     this.controlsBox = this.addControl("topright", "map-controls");
-    this.legendBox = this.addControl("bottomleft", "map-legends");
+    // The legends fold away (folded at first on a phone, where they would cover the map).
+    const legends = (this.legendControl = this.addControl("bottomleft", "map-legends"));
+    legends.innerHTML = `<details ${window.innerWidth > 600 ? "open" : ""}><summary>Legend</summary><div class="legend-body"></div></details>`;
+    this.legendBox = legends.querySelector(".legend-body") as HTMLElement;
     this.swipeBox = this.buildSwipe(container);
     this.renderControls();
     this.map.on("move zoom resize viewreset", () => this.applySwipe());
@@ -131,6 +147,8 @@ export class MapView {
     this.cursorBox.setAttribute("aria-live", "off");
     this.cursorBox.textContent = "Move the pointer over the map for its position";
     this.map.on("mousemove", (event: L.LeafletMouseEvent) => this.showCursor(event.latlng));
+    this.timeBox = this.addControl("topleft", "map-time");
+    this.renderTime();
     this.measure = new MeasureTool(this.map, () =>
       this.site
         ? {
@@ -145,7 +163,30 @@ export class MapView {
   /** Where the pointer is: latitude/longitude and UTM (the site's zone, from its longitude). */
   private showCursor(at: L.LatLng): void {
     const lon = L.Util.wrapNum(at.lng, [-180, 180], true);
-    this.cursorBox.innerHTML = `${escapeHtml(formatLatLon(at.lat, lon))}<br>UTM ${escapeHtml(formatUtm(toUtm(at.lat, lon)))}`;
+    this.cursorBox.innerHTML = `${escapeHtml(formatLatLon(at.lat, lon))}<br>UTM ${escapeHtml(formatUtm(toUtm(at.lat, lon)))}<br><span data-role="heights"></span>`;
+    // The heights under the pointer, asked for once it rests (a request per move would
+    // flood the API).
+    if (this.heightsTimer !== undefined) window.clearTimeout(this.heightsTimer);
+    this.heightsTimer = window.setTimeout(() => void this.showHeights(at.lat, lon), 250);
+  }
+
+  private async showHeights(lat: number, lon: number): Promise<void> {
+    const site = this.site;
+    const pair = this.shown;
+    if (!site || !pair) return;
+    const timeSurvey = this.timeIndex !== null ? this.readySurveys[this.timeIndex] : null;
+    const comparison = !timeSurvey && pair.comparison?.status === "succeeded" ? pair.comparison : null;
+    const survey = timeSurvey ?? (pair.post?.status === "ready" ? pair.post : null);
+    const path = comparison ? `comparisons/${comparison.id}` : survey ? `surveys/${survey.id}` : null;
+    if (!path) return;
+    const heights = await getJson<Record<string, number | null>>(`sites/${site.id}/${path}/heights?lon=${lon}&lat=${lat}`).catch(() => null);
+    const box = this.cursorBox.querySelector("[data-role=heights]");
+    if (!heights || !box) return;
+    const words: Record<string, string> = { pre: "Pre", post: "Post", dh: "Δh", dsm: timeSurvey ? timeSurvey.name : "DSM" };
+    box.textContent = Object.entries(heights)
+      .filter(([, value]) => value !== null)
+      .map(([name, value]) => `${words[name] ?? name} ${formatMetres(value, 2)}`)
+      .join(" · ");
   }
 
   private addControl(position: L.ControlPosition, className: string): HTMLElement {
@@ -172,6 +213,8 @@ export class MapView {
       this.applySwipe();
     });
     L.DomEvent.disableClickPropagation(box);
+    // Leaflet drags the map on pointer events: dragging the divider must not pan it.
+    L.DomEvent.on(box, "pointerdown touchstart", L.DomEvent.stopPropagation);
     container.append(box);
     return box;
   }
@@ -200,13 +243,30 @@ export class MapView {
     if (on) {
       this.setVisible("pre", true);
       this.setVisible("post", true);
+      // Δh and the patch cells cover both sides alike: the swipe would show no difference.
+      this.hiddenForSwipe = (["dh", "cells"] as LayerKey[]).filter((key) => this.visible.get(key));
+      for (const key of this.hiddenForSwipe) this.setVisible(key, false);
+    } else {
+      for (const key of this.hiddenForSwipe) this.setVisible(key, true);
+      this.hiddenForSwipe = [];
     }
     this.applySwipe();
     this.renderControls();
   }
 
+  /** A legend shows while one of the layers it explains is on. */
+  private applyLegendVisibility(): void {
+    let shown = 0;
+    this.legendBox.querySelectorAll<HTMLElement>("[data-layers]").forEach((legend) => {
+      legend.hidden = !(legend.dataset.layers ?? "").split(" ").some((key) => this.visible.get(key as LayerKey));
+      if (!legend.hidden) shown += 1;
+    });
+    this.legendControl.hidden = shown === 0; // no empty "Legend" box
+  }
+
   private setVisible(key: LayerKey, on: boolean): void {
     this.visible.set(key, on);
+    this.applyLegendVisibility();
     const group = this.groups.get(key) as L.LayerGroup;
     if (on && !this.map.hasLayer(group)) group.addTo(this.map);
     if (!on && this.map.hasLayer(group)) group.remove();
@@ -280,6 +340,15 @@ export class MapView {
   /** Footprints and trajectories of every survey of the site. */
   async showSurveys(site: Site, surveys: Survey[]): Promise<void> {
     this.site = site;
+    const shownBefore = this.timeIndex !== null ? this.readySurveys[this.timeIndex]?.id : undefined;
+    this.readySurveys = surveys
+      .filter((s) => s.status === "ready")
+      .sort((a, b) => a.captured_at.localeCompare(b.captured_at));
+    if (this.timeIndex !== null) {
+      const kept = this.readySurveys.findIndex((s) => s.id === shownBefore);
+      this.timeIndex = kept >= 0 ? kept : this.readySurveys.length ? this.readySurveys.length - 1 : null;
+    }
+    this.renderTime();
     const footprints = this.groups.get("footprints") as L.LayerGroup;
     const trajectories = this.groups.get("trajectories") as L.LayerGroup;
     footprints.clearLayers();
@@ -334,12 +403,13 @@ export class MapView {
         (this.groups.get("dh") as L.LayerGroup).addLayer(
           productTileLayer(tileTemplate(site.id, owner, "dh", range), info, "dh"),
         );
-        this.legendBox.append(differenceLegend(range));
+        this.legendBox.append(forLayers(differenceLegend(range), "dh"));
       }
       features = await this.showDetections(site, comparison);
-      this.legendBox.append(scoreLegend());
+      this.legendBox.append(forLayers(scoreLegend(), "detections"));
     }
     for (const key of RASTERS) this.setOpacity(key, this.opacity.get(key) ?? 1);
+    this.applyLegendVisibility();
     this.applySwipe();
     return features;
   }
@@ -348,6 +418,9 @@ export class MapView {
    * otherwise) and their legends; drawn again alone when those choices change. */
   private async showSurveyLayers(pair: ShownPair, generation: number): Promise<void> {
     const site = this.site as Site;
+    if (this.timeIndex !== null && this.readySurveys[this.timeIndex]) {
+      return this.showOneSurvey(this.readySurveys[this.timeIndex], generation);
+    }
     const surveyOwner = (s: Survey | null): Owner | null => (s && s.status === "ready" ? { kind: "surveys", id: s.id } : null);
     const owners = { pre: surveyOwner(pair.pre), post: surveyOwner(pair.post) };
     const done = pair.comparison && pair.comparison.status === "succeeded" ? pair.comparison : null;
@@ -392,12 +465,67 @@ export class MapView {
       const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", range ?? undefined), info, side);
       colours.setOpacity(0.6); // the hillshade shows through the elevation colours
       group.addLayer(colours);
-      if (!this.sharedStretch && range) this.surveyLegends.append(elevationLegend(range, side === "pre" ? "Pre DSM" : "Post DSM"));
+      if (!this.sharedStretch && range) this.surveyLegends.append(forLayers(elevationLegend(range, side === "pre" ? "Pre DSM" : "Post DSM"), side));
     }
-    if (this.sharedStretch && shared && asDsm.length) this.surveyLegends.append(elevationLegend(shared));
-    if (done && owners.post) this.surveyLegends.append(alignmentNote(done, corrected));
+    if (this.sharedStretch && shared && asDsm.length) this.surveyLegends.append(forLayers(elevationLegend(shared), ...asDsm));
+    if (done && owners.post) this.surveyLegends.append(forLayers(alignmentNote(done, corrected), "post"));
+    this.applyLegendVisibility();
     for (const side of ["pre", "post"] as const) this.setOpacity(side, this.opacity.get(side) ?? 1);
     this.applySwipe();
+  }
+
+  /** One survey alone (stepping through time): its orthophoto, or its DSM over hillshade. */
+  private async showOneSurvey(survey: Survey, generation: number): Promise<void> {
+    const site = this.site as Site;
+    const owner: Owner = { kind: "surveys", id: survey.id };
+    const info = await tileJson(site.id, owner, "dsm").catch(() => null);
+    const orthophoto = this.surveyView === "orthophoto" ? await tileJson(site.id, owner, "orthophoto").catch(() => null) : null;
+    if (generation !== this.generation) return;
+    for (const side of ["pre", "post"] as const) this.groups.get(side)?.clearLayers();
+    this.surveyLegends.innerHTML = "";
+    const group = this.groups.get("post") as L.LayerGroup;
+    if (orthophoto) group.addLayer(productTileLayer(tileTemplate(site.id, owner, "orthophoto"), orthophoto, "post"));
+    else if (info) {
+      group.addLayer(productTileLayer(tileTemplate(site.id, owner, "hillshade"), info, "post"));
+      const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", info.rescale ?? undefined), info, "post");
+      colours.setOpacity(0.6);
+      group.addLayer(colours);
+      if (info.rescale) this.surveyLegends.append(forLayers(elevationLegend(info.rescale, escapeHtml(survey.name)), "post"));
+    }
+    this.setOpacity("post", this.opacity.get("post") ?? 1);
+    this.applyLegendVisibility();
+    this.applySwipe();
+  }
+
+  /** The time stepper: every ready survey of the site in time order, one at a time. */
+  private renderTime(): void {
+    const n = this.readySurveys.length;
+    const on = this.timeIndex !== null;
+    const survey = on ? this.readySurveys[this.timeIndex as number] : null;
+    const when = survey ? formatDate(survey.captured_at, this.site?.timezone ?? "UTC") : "";
+    const open = (this.timeBox.querySelector("details") as HTMLDetailsElement | null)?.open ?? false;
+    this.timeBox.innerHTML = `<details ${open ? "open" : ""}><summary>Time</summary>
+      <label><input type="checkbox" id="time-toggle" ${on ? "checked" : ""} ${n ? "" : "disabled"}> Step through the ${n} ready surveys</label>
+      <label class="time-range"><span class="visually-hidden">Survey shown</span>
+        <input type="range" id="time-range" min="0" max="${Math.max(0, n - 1)}" step="1" value="${this.timeIndex ?? Math.max(0, n - 1)}" ${on ? "" : "disabled"}
+          aria-valuetext="${survey ? `${escapeHtml(survey.name)}, ${when}` : "off"}"></label>
+      <p class="time-label" aria-live="polite">${survey ? `${escapeHtml(survey.name)} · ${escapeHtml(when)} (${(this.timeIndex as number) + 1} of ${n})` : ""}</p></details>`;
+    (this.timeBox.querySelector("#time-toggle") as HTMLInputElement).addEventListener("change", (e) => {
+      this.timeIndex = (e.target as HTMLInputElement).checked && n ? n - 1 : null;
+      this.renderTime();
+      (this.timeBox.querySelector((e.target as HTMLInputElement).checked ? "#time-range" : "#time-toggle") as HTMLElement).focus();
+      void this.redraw();
+    });
+    const range = this.timeBox.querySelector("#time-range") as HTMLInputElement;
+    range.addEventListener("input", () => {
+      this.timeIndex = Number(range.value);
+      const shown = this.readySurveys[this.timeIndex];
+      const label = this.timeBox.querySelector(".time-label") as HTMLElement;
+      const date = formatDate(shown.captured_at, this.site?.timezone ?? "UTC");
+      label.textContent = `${shown.name} · ${date} (${this.timeIndex + 1} of ${n})`;
+      range.setAttribute("aria-valuetext", `${shown.name}, ${date}`);
+      void this.redraw();
+    });
   }
 
   private async showDetections(site: Site, comparison: Comparison): Promise<DetectionFeature[]> {
@@ -421,8 +549,10 @@ export class MapView {
       layer.eachLayer((path) => {
         const polygon = path as L.Path;
         polygon.bindPopup(() => detectionPopupHtml(feature.id, feature.properties, site.timezone, centreOf(polygon)), {
-          maxWidth: 320,
-          autoPanPaddingTopLeft: [10, 70], // clear of the page header on a phone
+          maxWidth: Math.min(320, this.map.getSize().x - 40),
+          // Scrolls rather than overflows a short (phone) map, and pans clear of its edges.
+          maxHeight: Math.max(160, this.map.getSize().y - 80),
+          autoPanPadding: [10, 10],
         });
         polygon.on("popupopen", (event: L.PopupEvent) => this.wireVerdicts(event.popup, site, comparison, feature));
         this.detectionLayers.set(feature.id, polygon);
@@ -436,6 +566,14 @@ export class MapView {
     const element = popup.getElement();
     if (!element) return;
     (element.querySelector("button[data-verdict]") as HTMLButtonElement | null)?.focus();
+    const history = element.querySelector<HTMLButtonElement>("button[data-history]");
+    history?.addEventListener("click", async () => {
+      const box = element.querySelector("[data-role=history]") as HTMLElement;
+      box.textContent = "Loading…";
+      const url = `sites/${site.id}/comparisons/${comparison.id}/detections/${feature.id}/history`;
+      // Written into the open popup (popup.update() would render its content anew).
+      box.innerHTML = historyHtml(await getJson<HistoryEntry[]>(url), site.timezone);
+    });
     const copy = element.querySelector<HTMLButtonElement>("button[data-position]");
     copy?.addEventListener("click", async () => {
       try {
@@ -466,7 +604,11 @@ export class MapView {
     const layer = this.detectionLayers.get(id) as (L.Path & { getBounds(): L.LatLngBounds }) | undefined;
     if (!layer) return;
     this.setVisible("detections", true);
-    this.map.fitBounds(layer.getBounds(), { padding: [60, 60], maxZoom: 23 });
+    // The list is below the map on a phone: bring the map back into view first.
+    const box = this.map.getContainer().getBoundingClientRect();
+    if (box.top < 0 || box.bottom > window.innerHeight) this.map.getContainer().scrollIntoView({ block: "nearest" });
+    // Not animated: the popup's pan into view is measured on the settled view.
+    this.map.fitBounds(layer.getBounds(), { padding: [60, 60], maxZoom: 23, animate: false });
     layer.openPopup(layer.getBounds().getCenter());
   }
 
