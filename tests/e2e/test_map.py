@@ -103,8 +103,21 @@ def test_sign_in_upload_compare_and_read_the_map(
     expect(page.locator("[data-legend=elevation-post]")).to_contain_text(" m")
     expect(page.locator("[data-legend=dh]")).to_contain_text("0 m")
     note = page.locator("[data-legend=alignment]")
-    expect(note).to_contain_text(
-        re.compile(r"Post shown co-registered onto pre: post moved .* m E")
+    # The statement is the comparison's stored shift (the pair was made 1.3 m E, 0.7 m S
+    # and 0.2 m up of pre: the correction undoes that).
+    summary = api_comparisons(page, app_server, "East flank")[0]["summary"]
+    shift, rotation = summary["shift_m"], summary["rotation_deg"]
+    assert abs(shift["east"] + 1.3) < 0.1 and abs(shift["north"] - 0.7) < 0.1, shift
+
+    def metres(value: float) -> str:
+        text = f"{abs(value):.2f}"
+        return f"−{text}" if value < 0 and float(text) else text
+
+    expect(note).to_have_text(
+        "Post shown co-registered onto pre: post moved "
+        f"{metres(shift['east'])} m E, {metres(shift['north'])} m N, {metres(shift['up'])} m up"
+        + (f" and turned {metres(rotation)}°" if abs(rotation) >= 0.005 else "")
+        + " to match pre."
     )
     # The post hillshade comes from the comparison's co-registered DSM ...
     assert any("/comparisons/" in url for url in tile_requests(page, clear=True))
@@ -373,6 +386,17 @@ def api_default_method(page: Page, app: App) -> dict:
     defaults = [m for m in response.json() if m["default"]]
     assert len(defaults) == 1, defaults
     return defaults[0]
+
+
+def api_comparisons(page: Page, app: App, site_name: str) -> list[dict]:
+    """A site's comparisons as the API answers them, asked with the page's token."""
+    token = page.evaluate("() => localStorage.getItem('slidewatch.token')")
+    headers = {"Authorization": f"Bearer {token}"}
+    sites = page.request.get(app.url + "/api/v1/sites", headers=headers).json()
+    site_id = next(s["id"] for s in sites if s["name"] == site_name)
+    answer = page.request.get(f"{app.url}/api/v1/sites/{site_id}/comparisons", headers=headers)
+    assert answer.ok, answer.text()
+    return answer.json()
 
 
 def api_survey(page: Page, app: App, site_name: str, survey_name: str) -> dict:
