@@ -17,8 +17,8 @@ const props: DetectionProperties = {
 
 describe("detections", () => {
   it("are redder and more opaque the higher their score", () => {
-    expect(scoreColor(0)).toBe("rgb(255, 237, 111)");
-    expect(scoreColor(1)).toBe("rgb(165, 0, 38)");
+    expect(scoreColor(0)).toBe("rgb(221, 214, 254)");
+    expect(scoreColor(1)).toBe("rgb(76, 29, 149)");
     expect(detectionStyle(0.9).fillOpacity).toBeGreaterThan(detectionStyle(0.2).fillOpacity);
   });
 

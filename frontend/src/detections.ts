@@ -8,9 +8,11 @@ import { formatLatLon, formatUtm, toUtm } from "./map/utm";
 export function scoreColor(score: number): string {
   const s = Math.max(0, Math.min(1, score));
   const stops: Array<[number, [number, number, number]]> = [
-    [0, [255, 237, 111]],
-    [0.5, [253, 141, 60]],
-    [1, [165, 0, 38]],
+    // Violets, light to dark: apart from Δh's blue (lost) and red (gained), so a red
+    // outline never reads as "gained" and a sure detection never as a loss.
+    [0, [221, 214, 254]],
+    [0.5, [139, 92, 246]],
+    [1, [76, 29, 149]],
   ];
   const i = s <= 0.5 ? 0 : 1;
   const [s0, c0] = stops[i];
