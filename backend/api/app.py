@@ -13,6 +13,7 @@ from backend.api.body_limits import BodyLimitMiddleware
 from backend.api.log_redaction import redact_access_logs
 from backend.api.routes import (
     alerts,
+    api_docs,
     auth,
     comparisons,
     detection_cells,
@@ -29,6 +30,7 @@ from backend.api.routes import (
     products,
     reports,
     schedules,
+    site_gis,
     sites,
     stac,
     survey_sources,
@@ -55,6 +57,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     wire(settings)
     redact_access_logs()
     app = FastAPI(
+        # /docs is served by api_docs, from a package rather than FastAPI's CDN.
+        docs_url=None,
+        redoc_url=None,
         title="slidewatch",
         version="0.1.0",
         summary="Landslide detection from multi-temporal drone surveys.",
@@ -88,6 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         alerts,
         schedules,
         reports,
+        site_gis,
         auth,
         tokens,
         users,
@@ -105,6 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(ogc.router)
     app.include_router(stac.router)
     app.include_router(frontend.router)
+    api_docs.mount_docs(app)
     frontend.mount_frontend(app, settings)
     return app
 

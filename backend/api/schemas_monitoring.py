@@ -48,6 +48,12 @@ class AlertSettingsIn(BaseModel):
 
 class AlertSettingsOut(AlertSettingsIn, ORMModel):
     site_id: int
+    email_available: bool = Field(
+        default=False, description="Whether this server can send e-mail (SMTP configured)."
+    )
+    email_unavailable_reason: str | None = Field(
+        default=None, description="Why e-mail recipients are refused, when they are."
+    )
 
 
 class WebhookCreate(BaseModel):
@@ -148,6 +154,12 @@ class ScheduleOut(ORMModel):
     next_run_at: datetime
     last_run_at: datetime | None
     created_at: datetime
+
+
+class SchedulePreview(BaseModel):
+    cron: str
+    timezone: str
+    next_runs: list[datetime] = Field(description="The next times it runs, in UTC.")
 
 
 class ReportCreate(BaseModel):

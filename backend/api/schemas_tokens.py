@@ -70,3 +70,9 @@ class UserAccountOut(BaseModel):
     created_at: datetime
     last_login_at: datetime | None
     disabled_at: datetime | None
+
+
+class UserCreate(BaseModel):
+    username: str = Field(min_length=1, max_length=100)
+    password: str = Field(min_length=1, max_length=200, description="At least 8 characters.")
+    display_name: str = Field(default="", max_length=200)

@@ -4,8 +4,8 @@ The map is one page of our own scripts (no inline script), so its Content-Securi
 allows scripts from this origin only; tiles arrive as blob: images fetched with the token
 in a header, the basemap (SLIDEWATCH_BASEMAP_URL) from its own origin. Leaflet and the
 page position elements with style attributes, so styles may be inline (scripts may not).
-The OpenAPI documentation pages (/docs, /redoc) are FastAPI's, which load Swagger UI and
-ReDoc from their CDN with an inline script: they get a policy of their own.
+The API documentation (/docs) is Swagger UI served by the app from a package, started by
+a script file of its own: it lives under the same policy as the map, and needs no CDN.
 """
 
 from __future__ import annotations
@@ -15,9 +15,6 @@ from urllib.parse import urlsplit
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from backend.config import Settings
-
-DOCS_PATHS = ("/docs", "/redoc")
-_DOCS_CDN = "https://cdn.jsdelivr.net"
 
 
 def map_policy(basemap_url: str | None) -> str:
@@ -44,21 +41,6 @@ def map_policy(basemap_url: str | None) -> str:
     )
 
 
-DOCS_POLICY = "; ".join(
-    [
-        "default-src 'self'",
-        f"script-src 'self' 'unsafe-inline' {_DOCS_CDN}",
-        f"style-src 'self' 'unsafe-inline' {_DOCS_CDN}",
-        "img-src 'self' data: https://fastapi.tiangolo.com",
-        "worker-src 'self' blob:",
-        "connect-src 'self'",
-        "object-src 'none'",
-        "base-uri 'none'",
-        "frame-ancestors 'none'",
-    ]
-)
-
-
 class SecurityHeadersMiddleware:
     def __init__(self, app: ASGIApp, settings: Settings) -> None:
         self.app = app
@@ -78,16 +60,12 @@ class SecurityHeadersMiddleware:
                 "content-security-policy": map_policy(settings.basemap_url),
             }.items()
         ]
-        self.docs_headers = [
-            (k.encode(), v.encode())
-            for k, v in {**common, "content-security-policy": DOCS_POLICY}.items()
-        ]
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        added = self.docs_headers if scope["path"] in DOCS_PATHS else self.headers
+        added = self.headers
 
         async def with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":

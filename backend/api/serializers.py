@@ -72,6 +72,8 @@ def comparison_out(comparison: Comparison, job: Job | None, storage: LocalStorag
     return out
 
 
-def detection_feature(detection: Detection) -> dict[str, Any]:
-    """The stored record (as in the product file) and what people said about it."""
-    return detections.detection_feature(detection, {"feedback": feedback_summary(detection)})
+def detection_feature(detection: Detection, label: int | None = None) -> dict[str, Any]:
+    """The stored record (as in the product file), its label and what people said about it."""
+    return detections.detection_feature(
+        detection, {"feedback": feedback_summary(detection)}, label=label
+    )

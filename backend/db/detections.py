@@ -51,13 +51,26 @@ def detection_properties(row: Detection) -> DetectionProperties:
     )
 
 
-def detection_feature(row: Detection, extra: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The row as a GeoJSON Feature: its id, its record, its comparison (and `extra`)."""
+def detection_labels(comparison: Comparison) -> dict[int, int]:
+    """Each detection's label, 1…n within its comparison: the one number people see.
+
+    The rows are stored in the order the detection stage numbered them (largest first), so
+    their id order is that numbering; the page, the GeoJSON, the exports, the alerts and the
+    report all use this label rather than the database id, which runs on across comparisons.
+    """
+    return {row.id: number for number, row in enumerate(comparison.detections, start=1)}
+
+
+def detection_feature(
+    row: Detection, extra: dict[str, Any] | None = None, label: int | None = None
+) -> dict[str, Any]:
+    """The row as a GeoJSON Feature: its id, its record, its comparison, its label (and
+    `extra`)."""
+    members: dict[str, Any] = {"comparison_id": row.comparison_id}
+    if label is not None:
+        members["label"] = label
     return detection_record.detection_feature(
-        row.id,
-        row.geometry,
-        detection_properties(row),
-        {"comparison_id": row.comparison_id, **(extra or {})},
+        row.id, row.geometry, detection_properties(row), {**members, **(extra or {})}
     )
 
 

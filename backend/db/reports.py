@@ -24,6 +24,7 @@ from backend.db.stored_files import record_stored_file
 from backend.storage import LocalStorage
 from backend.storage_layout import report_file
 from worker.reports import Change, DetectionRow, ReportData
+from worker.reports.render import local_time
 
 MEDIA_TYPES = {"pdf": "application/pdf", "html": "text/html; charset=utf-8"}
 FILES = {"pdf": "report.pdf", "html": "report.html"}
@@ -67,8 +68,8 @@ def model_version(method: str, model: str | None = None) -> str:
     return f"slidewatch {of('slidewatch')}, detection method '{method}'{ran}, xdem {of('xdem')}"
 
 
-def _survey_label(survey: Survey) -> str:
-    return f"survey {survey.id} '{survey.name}' ({_aware(survey.captured_at):%Y-%m-%d %H:%M} UTC)"
+def _survey_label(survey: Survey, timezone: str) -> str:
+    return f"survey {survey.id} '{survey.name}' ({local_time(survey.captured_at, timezone)})"
 
 
 def _processing(comparison: Comparison) -> dict[str, Any]:
@@ -131,8 +132,8 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
     post = comparison.post_survey
     if newest is not None and _aware(newest.captured_at) > _aware(post.captured_at):
         notes.append(
-            f"The site has a newer survey ({_survey_label(newest)}) that no finished "
-            "comparison covers yet: compare it to include it."
+            f"The site has a newer survey ({_survey_label(newest, site.timezone)}) that no "
+            "finished comparison covers yet: compare it to include it."
         )
     data = ReportData(
         report_id=report.id,
@@ -140,8 +141,8 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         created_at=_aware(report.created_at) or utcnow(),
         trigger=report.trigger,
         comparison_id=comparison.id,
-        pre_survey=_survey_label(comparison.pre_survey),
-        post_survey=_survey_label(post),
+        pre_survey=_survey_label(comparison.pre_survey, site.timezone),
+        post_survey=_survey_label(post, site.timezone),
         dh_path=_product_path(storage, comparison, "dh"),
         dsm_path=_product_path(storage, comparison, "post_coregistered"),
         detections=rows,
@@ -153,6 +154,7 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
             detection_model(comparison, (comparison.summary or {}).get("stages") or {}),
         ),
         notes=notes,
+        timezone=site.timezone,
     )
     data.change = _change(session, report, comparison.id, data.totals)
     return data

@@ -38,6 +38,7 @@ from sqlalchemy import event, select, update
 from sqlalchemy.orm import Session
 
 from backend.config import Settings
+from backend.db.detections import detection_labels
 from backend.db.models import (
     AlertSettings,
     Comparison,
@@ -110,12 +111,13 @@ def _links(settings: Settings, site_id: int, **paths: str) -> dict[str, str]:
     return {name: f"{base}{path}" for name, path in paths.items()}
 
 
-def detection_summary(detection: Detection) -> dict[str, Any]:
+def detection_summary(detection: Detection, label: int | None = None) -> dict[str, Any]:
     from shapely.geometry import shape
 
     centroid = shape(detection.geometry).centroid
     return {
         "id": detection.id,
+        "label": label,  # 1…n in its comparison, as in the page, the GeoJSON and the report
         "area_m2": round(detection.area_m2, 2),
         "volume_loss_m3": round(detection.volume_loss_m3, 2),
         "volume_gain_m3": round(detection.volume_gain_m3, 2),
@@ -134,6 +136,7 @@ def comparison_succeeded(
     if not found:
         return []
     site = session.get(Site, comparison.site_id)
+    labels = detection_labels(comparison)
     api = api_url("sites", comparison.site_id, "comparisons", comparison.id)
     payload = {
         "event": "landslides_detected",
@@ -149,7 +152,7 @@ def comparison_succeeded(
             "min_volume_m3": rules.min_volume_m3,
             "min_score": rules.min_score,
         },
-        "detections": [detection_summary(d) for d in found],
+        "detections": [detection_summary(d, labels[d.id]) for d in found],
         "links": _links(
             settings,
             site.id,
@@ -279,6 +282,64 @@ def create_deliveries(
         session.flush()
         queue_after_commit(session, settings, [d.id for d in created])
     return created
+
+
+class EmailUnavailable(RuntimeError):
+    """E-mail is asked for while this server has no SMTP server; the message says so."""
+
+
+EMAIL_UNAVAILABLE = (
+    "e-mail cannot be sent: this server has no SMTP server configured "
+    "(SLIDEWATCH_SMTP_HOST is unset); ask its administrator to set one, or use a webhook"
+)
+
+
+def check_email_available(settings: Settings) -> None:
+    # Refused where it is asked for, rather than accepted and never sent: a recipient
+    # saved without SMTP would believe alerts reach them.
+    if not settings.smtp_host:
+        raise EmailUnavailable(EMAIL_UNAVAILABLE)
+
+
+def test_delivery(
+    session: Session, settings: Settings, site: Site, webhook: Webhook | None, who: str
+) -> Delivery:
+    """A delivery of the event `test` to one webhook, or (webhook None) to the site's e-mail
+    recipients: sent by the worker like any alert, with its attempts in the delivery log."""
+    rules = alert_settings(session, site.id)
+    if webhook is None:
+        check_email_available(settings)
+        if not rules.email_recipients:
+            raise LookupError(f"site {site.id} has no e-mail recipients to send a test to")
+    moment = utcnow()
+    payload = {
+        "event": "test",
+        "site": {"id": site.id, "name": site.name},
+        "sent_by": who,
+        "sent_at": _iso(moment),
+        "message": "A test from slidewatch: this target receives the site's alerts.",
+        "links": _links(settings, site.id, site=api_url("sites", site.id)),
+    }
+    target = f"webhook:{webhook.id}" if webhook is not None else "email"
+    delivery = Delivery(
+        site_id=site.id,
+        channel="webhook" if webhook is not None else "email",
+        webhook_id=webhook.id if webhook is not None else None,
+        recipients=None if webhook is not None else list(rules.email_recipients),
+        event="test",
+        # Every test is its own delivery: the key only has to be unique.
+        dedupe_key=f"test:{moment.timestamp():.6f}:{target}"[:200],
+        payload=payload
+        if webhook is not None
+        else {**payload, "subject": f"[slidewatch] {site.name}: test e-mail"},
+        status=DeliveryStatus.pending,
+        attempts=0,
+        next_attempt_at=moment,
+    )
+    session.add(delivery)
+    session.flush()
+    queue_after_commit(session, settings, [delivery.id])
+    return delivery
 
 
 # --- queueing ---------------------------------------------------------------------------
@@ -562,7 +623,8 @@ def email_text(payload: dict[str, Any]) -> str:
         lines.append("")
         for d in payload["detections"]:
             lines.append(
-                f"  #{d['id']}: area {d['area_m2']:.1f} m², loss {d['volume_loss_m3']:.1f} m³, "
+                f"  Detection {d.get('label') or d['id']}: area {d['area_m2']:.1f} m², "
+                f"loss {d['volume_loss_m3']:.1f} m³, "
                 f"gain {d['volume_gain_m3']:.1f} m³, max |Δh| {d['max_abs_dh_m']:.2f} m, "
                 f"score {d['score']:.2f}, at {d['centroid']['lat']:.6f}, "
                 f"{d['centroid']['lon']:.6f}"
@@ -570,6 +632,8 @@ def email_text(payload: dict[str, Any]) -> str:
     elif payload["event"] == "job_failed":
         job = payload["job"]
         lines.append(f"The {job['kind']} job {job['id']} failed: {job['error']}")
+    elif payload["event"] == "test":
+        lines.append(payload.get("message", "A test from slidewatch."))
     elif payload["event"] == "report_ready":
         report = payload["report"]
         lines.append(

@@ -63,6 +63,13 @@ def next_run(cron: str, timezone: str, after: datetime) -> datetime:
     return croniter(cron, local).get_next(datetime).astimezone(UTC)
 
 
+def next_runs(cron: str, timezone: str, after: datetime, count: int) -> list[datetime]:
+    """The next `count` times after `after` that `cron` names in `timezone`, in UTC."""
+    local = _aware(after).astimezone(ZoneInfo(timezone))
+    times = croniter(cron, local)
+    return [times.get_next(datetime).astimezone(UTC) for _ in range(count)]
+
+
 @dataclass(frozen=True)
 class ClaimedRun:
     schedule_id: int

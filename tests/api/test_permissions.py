@@ -32,11 +32,14 @@ PUBLIC = {
     ("OPTIONS", "/api/v1/uploads"): "tus: what the server supports",
     ("GET", "/app-config.json"): "what the map needs before sign-in",
     ("GET", "/"): "the map's page",
+    ("GET", "/docs"): "the API's documentation (its schema is public too)",
+    ("GET", "/docs/api-docs.js"): "the documentation page's script",
+    ("GET", "/redoc"): "a redirect to /docs",
 }
 
 
 # Routers the app includes at its root; the others are under /api/v1.
-AT_ROOT = {"health", "ogc", "stac", "frontend"}
+AT_ROOT = {"health", "ogc", "stac", "frontend", "api_docs"}
 
 
 def _routes() -> Iterator[tuple[str, APIRoute]]:

@@ -139,9 +139,17 @@ def test_every_answer_carries_the_security_headers(
     assert "strict-transport-security" not in headers  # served over http here
 
 
-def test_the_documentation_pages_have_their_own_policy(client: TestClient) -> None:
-    policy = client.get("/docs").headers["content-security-policy"]
-    assert "https://cdn.jsdelivr.net" in policy and "frame-ancestors 'none'" in policy
+def test_the_documentation_page_loads_nothing_from_elsewhere(client: TestClient) -> None:
+    """/docs is Swagger UI served by the app: the map's strict policy, no CDN, no inline
+    script; /redoc points to it."""
+    page = client.get("/docs")
+    policy = page.headers["content-security-policy"]
+    assert "script-src 'self';" in policy and "frame-ancestors 'none'" in policy
+    assert "http" not in policy.replace("'self'", "")
+    assert "<script>" not in page.text and "cdn" not in page.text.lower()
+    for asset in ("/docs/assets/swagger-ui-bundle.js", "/docs/api-docs.js"):
+        assert client.get(asset).status_code == 200, asset
+    assert client.get("/redoc", follow_redirects=False).headers["location"] == "/docs"
 
 
 def test_the_basemap_origin_is_allowed_for_images() -> None:

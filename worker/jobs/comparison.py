@@ -124,7 +124,9 @@ class ComparisonJob(StorageJob):
         session.add_all(rows)
         session.flush()
         collection = json.loads(path.read_text(encoding="utf-8"))
-        collection["features"] = [detection_feature(row) for row in rows]
+        collection["features"] = [
+            detection_feature(row, label=number) for number, row in enumerate(rows, start=1)
+        ]
         write_text_atomic(path, json.dumps(collection, separators=(",", ":")))
 
     def on_success(self, session: Session, job: Job) -> None:

@@ -52,6 +52,8 @@ class ReportData:
     processing: dict[str, Any]  # what the stages measured (shift, NMAD, LoD, ...)
     model_version: str
     notes: list[str] = field(default_factory=list)
+    # The site's IANA time zone: every time in the report is in it, as in the page.
+    timezone: str = "UTC"
 
     @property
     def totals(self) -> dict[str, float]:

@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from functools import cache
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import matplotlib
 from jinja2 import Environment, FileSystemLoader, select_autoescape
@@ -54,9 +55,14 @@ def register_fonts() -> None:
     pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD)
 
 
-def _utc(moment: datetime) -> str:
+def local_time(moment: datetime, timezone: str = "UTC") -> str:
+    """The time in the site's zone, named, as the page shows it: "2026-06-01 19:00 JST"."""
     moment = moment if moment.tzinfo else moment.replace(tzinfo=UTC)
-    return moment.astimezone(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    try:
+        zone = ZoneInfo(timezone)
+    except (ZoneInfoNotFoundError, ValueError):
+        zone = ZoneInfo("UTC")  # a report is still made; the zone is named below
+    return moment.astimezone(zone).strftime("%Y-%m-%d %H:%M %Z")
 
 
 def _flatten(values: dict[str, Any], prefix: str = "") -> list[tuple[str, str]]:
@@ -78,7 +84,7 @@ def change_text(data: ReportData) -> str:
         return "This is the first report of the site."
     since = f"report {change.previous_report_id}"
     if change.previous_created_at is not None:
-        since += f" ({_utc(change.previous_created_at)})"
+        since += f" ({local_time(change.previous_created_at, data.timezone)})"
     if change.same_comparison:
         return f"No new comparison since {since}: the landslides are those reported then."
     return (
@@ -115,12 +121,13 @@ def render_pdf(data: ReportData, figure: Path, out_pdf: Path) -> Path:
     story: list[Any] = [
         Paragraph(f"Landslide monitoring report: {_escape(data.site_name)}", h1),
         Paragraph(
-            f"Report {data.report_id} · {_utc(data.created_at)} · {_trigger(data)} · "
-            f"comparison {data.comparison_id}",
+            f"Report {data.report_id} · {local_time(data.created_at, data.timezone)} · "
+            f"{_trigger(data)} · comparison {data.comparison_id}",
             small,
         ),
         Paragraph(f"Before: {_escape(data.pre_survey)}", small),
         Paragraph(f"After: {_escape(data.post_survey)}", small),
+        Paragraph(f"Times in {_escape(data.timezone)}.", small),
         Spacer(1, 4 * mm),
         Paragraph(_summary_text(data), body),
     ]
@@ -199,7 +206,7 @@ def render_html(data: ReportData, figure: Path, out_html: Path) -> Path:
     )
     html = environment.get_template("report.html").render(
         d=data,
-        created=_utc(data.created_at),
+        created=local_time(data.created_at, data.timezone),
         trigger=_trigger(data),
         totals=data.totals,
         figure=base64.b64encode(Path(figure).read_bytes()).decode(),

@@ -20,22 +20,57 @@ from backend.api.schemas_monitoring import (
 from backend.db.models import AlertSettings, Delivery, Webhook, utcnow
 from backend.ids import RowId
 from backend.outbound import UrlRefused, parse_networks, resolve_target
-from backend.services.alerts import alert_settings
+from backend.services.alerts import (
+    EMAIL_UNAVAILABLE,
+    EmailUnavailable,
+    alert_settings,
+    check_email_available,
+    test_delivery,
+)
 from backend.services.audit import record
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["alerts"])
 
 
+def _settings_out(rules: AlertSettings, settings: SettingsDep) -> AlertSettingsOut:
+    available = bool(settings.smtp_host)
+    return AlertSettingsOut.model_validate(rules).model_copy(
+        update={
+            "email_available": available,
+            "email_unavailable_reason": None if available else EMAIL_UNAVAILABLE,
+        }
+    )
+
+
 @router.get("/alerts", response_model=AlertSettingsOut, summary="When the site alerts")
-def get_alert_settings(site: SiteManager, session: SessionDep) -> AlertSettings:
-    return alert_settings(session, site.id)
+def get_alert_settings(
+    site: SiteManager, session: SessionDep, settings: SettingsDep
+) -> AlertSettingsOut:
+    return _settings_out(alert_settings(session, site.id), settings)
 
 
-@router.put("/alerts", response_model=AlertSettingsOut, summary="Set when the site alerts")
+@router.put(
+    "/alerts",
+    response_model=AlertSettingsOut,
+    summary="Set when the site alerts",
+    responses={409: {"description": "E-mail recipients while no SMTP server is configured."}},
+)
 def put_alert_settings(
-    body: AlertSettingsIn, site: SiteManager, session: SessionDep, token: SignedIn
-) -> AlertSettings:
-    """Thresholds for `landslides_detected` (all must hold), e-mail recipients, job failures."""
+    body: AlertSettingsIn,
+    site: SiteManager,
+    session: SessionDep,
+    token: SignedIn,
+    server: SettingsDep,
+) -> AlertSettingsOut:
+    """Thresholds for `landslides_detected` (all must hold), e-mail recipients, job failures.
+
+    E-mail recipients are refused (409) while SLIDEWATCH_SMTP_HOST is unset: nothing could
+    be sent to them."""
+    if body.email_recipients:
+        try:
+            check_email_available(server)
+        except EmailUnavailable as exc:
+            raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     settings = session.get(AlertSettings, site.id)
     if settings is None:
         settings = AlertSettings(site_id=site.id)
@@ -46,7 +81,26 @@ def put_alert_settings(
     record(session, token, "alerts.update", site=site, target=f"site {site.id}",
            details=body.model_dump())  # fmt: skip
     session.commit()
-    return settings
+    return _settings_out(settings, server)
+
+
+@router.post(
+    "/alerts/test-email",
+    response_model=DeliveryOut,
+    status_code=status.HTTP_202_ACCEPTED,
+    summary="Send a test e-mail to the site's recipients (see the delivery log)",
+    responses={409: {"description": "No SMTP server is configured, or no recipient set."}},
+)
+def send_test_email(
+    site: SiteManager, session: SessionDep, settings: SettingsDep, token: SignedIn
+) -> Delivery:
+    try:
+        delivery = test_delivery(session, settings, site, None, token.name)
+    except (EmailUnavailable, LookupError) as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    record(session, token, "alerts.test_email", site=site, target=f"delivery {delivery.id}")
+    session.commit()
+    return delivery
 
 
 @router.post(
@@ -98,6 +152,28 @@ def update_webhook(
            details=changes)  # fmt: skip
     session.commit()
     return webhook
+
+
+@router.post(
+    "/webhooks/{webhook_id}/test",
+    response_model=DeliveryOut,
+    status_code=status.HTTP_202_ACCEPTED,
+    summary="Send the event `test` to a webhook now (see the delivery log)",
+)
+def test_webhook(
+    webhook_id: RowId,
+    site: SiteManager,
+    session: SessionDep,
+    settings: SettingsDep,
+    token: SignedIn,
+) -> Delivery:
+    """Signed and sent by the worker like any alert (even to an inactive webhook: that is
+    what a test is for); its attempts appear in the delivery log."""
+    webhook = owned_by_site(session, Webhook, site, webhook_id, "webhook")
+    delivery = test_delivery(session, settings, site, webhook, token.name)
+    record(session, token, "webhook.test", site=site, target=f"webhook {webhook.id}")
+    session.commit()
+    return delivery
 
 
 @router.delete("/webhooks/{webhook_id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -12,6 +12,7 @@ from backend.api.schemas import (
     ProductOut,
 )
 from backend.api.serializers import comparison_out, detection_feature, job_out, product_out
+from backend.db.detections import detection_labels
 from backend.db.models import Comparison, Job, Site
 from backend.ids import RowId
 from backend.services.audit import record
@@ -111,9 +112,10 @@ def get_comparison(
 )
 def get_detections(comparison_id: RowId, site: SiteViewer, session: SessionDep) -> JSONResponse:
     comparison = comparison_of_site(session, site, comparison_id)
+    labels = detection_labels(comparison)
     collection = {
         "type": "FeatureCollection",
-        "features": [detection_feature(d) for d in comparison.detections],
+        "features": [detection_feature(d, labels[d.id]) for d in comparison.detections],
     }
     return JSONResponse(collection, media_type="application/geo+json")
 

@@ -1,15 +1,22 @@
 """Monitoring schedules of a site: a report at every time a cron expression names."""
 
-from fastapi import APIRouter, HTTPException, Response, status
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from sqlalchemy import select
 
 from backend.api.access import SignedIn, SiteManager, SiteViewer
 from backend.api.deps import SessionDep, owned_by_site
-from backend.api.schemas_monitoring import ScheduleCreate, ScheduleOut, ScheduleUpdate
+from backend.api.schemas_monitoring import (
+    ScheduleCreate,
+    ScheduleOut,
+    SchedulePreview,
+    ScheduleUpdate,
+)
 from backend.db.models import Schedule
 from backend.ids import RowId
 from backend.services.audit import record
-from backend.services.schedules import ScheduleRejected, check, next_run, utcnow
+from backend.services.schedules import ScheduleRejected, check, next_run, next_runs, utcnow
 
 router = APIRouter(prefix="/sites/{site_id}/schedules", tags=["schedules"])
 
@@ -58,6 +65,26 @@ def create_schedule(
 def list_schedules(site: SiteViewer, session: SessionDep) -> list[Schedule]:
     query = select(Schedule).where(Schedule.site_id == site.id).order_by(Schedule.id)
     return list(session.scalars(query))
+
+
+@router.get(
+    "/preview",
+    response_model=SchedulePreview,
+    summary="The next times a cron expression names, before it is saved",
+)
+def preview_schedule(
+    site: SiteViewer,
+    cron: Annotated[str, Query(max_length=120, description="Five-field cron expression.")],
+    timezone: Annotated[str, Query(max_length=64, description="IANA time zone.")] = "UTC",
+    count: Annotated[int, Query(ge=1, le=20)] = 5,
+) -> SchedulePreview:
+    """The page's cron builder shows these; the times are computed by the same code that
+    runs the schedule, so what is shown is what will run. An expression that cannot run is
+    answered 422 with the reason."""
+    _checked(cron, timezone)
+    return SchedulePreview(
+        cron=cron, timezone=timezone, next_runs=next_runs(cron, timezone, utcnow(), count)
+    )
 
 
 @router.get("/{schedule_id}", response_model=ScheduleOut)
