@@ -88,7 +88,7 @@ export function detectionPopupHtml(
     : "no verdict yet";
   return `
     <div class="popup" data-detection-id="${id}">
-      <h3>Detection ${id}</h3>
+      <h3>Detection ${p.label ?? id}</h3>
       <table>${rows.map(([k, v]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(v)}</td></tr>`).join("")}</table>
       ${position ? positionHtml(position) : ""}
       <p><button type="button" data-history>History of this ground</button></p>

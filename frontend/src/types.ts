@@ -161,6 +161,8 @@ export type Verdict = "confirmed" | "false_alarm";
 
 export interface DetectionProperties {
   comparison_id: number;
+  /** 1…n within its comparison: the number the page, the exports and the report show. */
+  label?: number;
   area_m2: number;
   volume_loss_m3: number;
   volume_gain_m3: number;

@@ -83,6 +83,9 @@ def app_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
         "SLIDEWATCH_FRONTEND_DIR": str(FRONTEND_DIST),
         "SLIDEWATCH_UPLOAD_CHUNK_BYTES": str(CHUNK_BYTES),
         "SLIDEWATCH_SEED_DEMO": "false",
+        # The webhook receiver of the alerts test listens on loopback, which webhooks may
+        # call only where an administrator allows it.
+        "SLIDEWATCH_WEBHOOK_ALLOWED_NETWORKS": '["127.0.0.1/32"]',
     }
     worker = SlidewatchProcess(settings, root / "worker.log", ["worker", "--beat"], b" ready.")
     api = SlidewatchProcess(

@@ -1,6 +1,7 @@
 // Your account: the API tokens you hold (make one that expires, revoke any), your password.
 
 import { ApiError, api, getJson, postJson, session } from "../api";
+import { PeoplePanel } from "../components/people";
 import { escapeHtml, formatDateTime } from "../format";
 import type { ApiTokenInfo, NewApiToken } from "../types";
 import { header, wireSignOut } from "./header";
@@ -41,6 +42,10 @@ export async function renderAccount(app: HTMLElement): Promise<void> {
           <p class="error" role="alert" id="token-error"></p>
           <p class="notice" id="token-secret" hidden></p>
         </form>
+      </section>
+      <section class="card" aria-labelledby="people-title">
+        <h2 id="people-title">Members and users</h2>
+        <div id="people"><p>Loading…</p></div>
       </section>
       ${
         isUser
@@ -102,5 +107,5 @@ export async function renderAccount(app: HTMLElement): Promise<void> {
       error.textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
     }
   });
-  await refresh();
+  await Promise.all([refresh(), new PeoplePanel(app.querySelector("#people") as HTMLElement).load()]);
 }

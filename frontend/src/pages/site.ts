@@ -1,7 +1,13 @@
 // A site's page: its surveys on a timeline, comparisons, processing, uploads, and the map.
 
 import { ApiError, api, authHeaders, getJson, postJson } from "../api";
+import { AlertsPanel } from "../components/alerts";
+import { DownloadsPanel } from "../components/downloads";
+import { GisPanel } from "../components/gis";
 import { JobsPanel } from "../components/jobs";
+import { ReportsPanel } from "../components/reports";
+import { SchedulesPanel } from "../components/schedules";
+import { isTimeZone, timeZoneField } from "../components/tools";
 import { renderTimeline } from "../components/timeline";
 import { UploadPanel } from "../components/uploadPanel";
 import { escapeHtml, formatArea, formatDate, formatMetres, formatVolume } from "../format";
@@ -50,9 +56,14 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     <main id="main" class="site-layout">
       <aside class="sidebar" aria-label="Site">
         <h1>${escapeHtml(site.name)}</h1>
-        <p class="muted">Times in ${escapeHtml(site.timezone)}. ${escapeHtml(site.description)}</p>
+        <p class="muted">Times in <span id="site-timezone">${escapeHtml(site.timezone)}</span>. ${escapeHtml(site.description)}</p>
         <p class="row-actions"><button type="button" id="rename-site">Rename site</button>
-          <button type="button" id="delete-site">Delete site</button></p>
+          <button type="button" id="delete-site">Delete site</button>
+          <button type="button" id="change-timezone" aria-expanded="false">Change time zone</button></p>
+        <form id="timezone-form" class="tools" hidden>
+          ${timeZoneField("timezone-input", site.timezone, "Time zone of the site (type to search)")}
+          <button type="submit">Save time zone</button>
+        </form>
         <p class="error" role="alert" id="manage-error"></p>
         <section aria-labelledby="surveys-title"><h2 id="surveys-title">Surveys</h2><div id="surveys"></div></section>
         <section aria-labelledby="compare-title"><h2 id="compare-title">Compare two surveys</h2>
@@ -72,6 +83,13 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
         <section aria-labelledby="jobs-title"><h2 id="jobs-title">Processing</h2><div id="jobs"></div></section>
         <section aria-labelledby="detections-title"><h2 id="detections-title">Detections</h2><div id="detections"></div>
           <p><a href="#" id="export-labels">Download verdicts as training labels (GeoJSON)</a></p></section>
+        <section aria-labelledby="tools-title" class="tools"><h2 id="tools-title">Reports, downloads, GIS and alerts</h2>
+          <details id="reports-section"><summary>Reports</summary><div id="reports"></div></details>
+          <details id="downloads-section"><summary>Downloads</summary><div id="downloads"></div></details>
+          <details id="gis-section"><summary>Use in GIS</summary><div id="gis"></div></details>
+          <details id="schedules-section"><summary>Monitoring schedules</summary><div id="schedules"></div></details>
+          <details id="alerts-section"><summary>Alerts</summary><div id="alerts"></div></details>
+        </section>
         <section aria-labelledby="upload-title"><h2 id="upload-title">Upload a survey</h2><div id="upload"></div></section>
       </aside>
       <div class="map-wrap"><div id="map" role="region" aria-label="Map of ${escapeHtml(site.name)}" tabindex="0"></div></div>
@@ -80,6 +98,38 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   const $ = (id: string) => app.querySelector(`#${id}`) as HTMLElement;
   const map = new MapView($("map"), config);
   const state: State = { site, surveys: [], comparisons: [], shown: null };
+  const reports = new ReportsPanel($("reports"), siteId, site.timezone);
+  const downloads = new DownloadsPanel($("downloads"), siteId, site.timezone);
+  const gis = new GisPanel($("gis"), siteId);
+  const schedules = new SchedulesPanel($("schedules"), siteId, site.timezone);
+  const alerts = new AlertsPanel($("alerts"), siteId, site.timezone);
+  // Each panel asks the API when it is opened, not with the page: most visits open none.
+  const onOpen: Array<[string, () => Promise<void>]> = [
+    ["reports-section", () => reports.load()],
+    ["downloads-section", () => downloads.show(state.surveys, state.shown)],
+    ["gis-section", () => gis.load()],
+    ["schedules-section", () => schedules.load()],
+    ["alerts-section", () => alerts.load()],
+  ];
+  for (const [id, load] of onOpen) {
+    $(id).addEventListener("toggle", () => {
+      if (($(id) as HTMLDetailsElement).open) void load();
+    });
+  }
+  $("change-timezone").addEventListener("click", () => {
+    const form = $("timezone-form");
+    form.hidden = !form.hidden;
+    $("change-timezone").setAttribute("aria-expanded", String(!form.hidden));
+  });
+  $("timezone-form").addEventListener("submit", (event) => {
+    event.preventDefault();
+    void manage(async () => {
+      const timezone = ($("timezone-input") as HTMLInputElement).value.trim();
+      if (!isTimeZone(timezone)) throw new ApiError(422, `"${timezone}" is not a time zone of the list`);
+      await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ timezone }) });
+      window.location.reload(); // every time on the page is shown anew in the new zone
+    });
+  });
 
   async function loadSurveys(): Promise<void> {
     state.surveys = await getJson<Survey[]>(`sites/${siteId}/surveys`);
@@ -106,7 +156,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
           .reverse()
           .map((c) => {
             const summary = c.summary
-              ? `${c.summary.detections ?? 0} detections, ${formatArea(c.summary.total_area_m2)}, loss ${formatVolume(c.summary.total_volume_loss_m3)}`
+              ? `${plural(c.summary.detections ?? 0, "detection", "detections")}, ${formatArea(c.summary.total_area_m2)}, loss ${formatVolume(c.summary.total_volume_loss_m3)}`
               : escapeHtml(c.error ?? "");
             const current = state.shown?.id === c.id ? "aria-current=\"true\"" : "";
             const how = detectionText(c.detection);
@@ -131,7 +181,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     $("detections").innerHTML = features.length
       ? `<ol class="detections">${features
           .map(
-            (f) => `<li><button type="button" data-detection="${f.id}">Detection ${f.id}</button>
+            // The label (1…n in this comparison) is the one the GeoJSON, the exports and
+            // the report give; the database id only finds the polygon on the map.
+            (f) => `<li><button type="button" data-detection="${f.id}">Detection ${f.properties.label ?? f.id}</button>
               ${formatArea(f.properties.area_m2)}, max |Δh| ${formatMetres(f.properties.max_abs_dh_m)}, score ${f.properties.score.toFixed(2)}</li>`,
           )
           .join("")}</ol>`
@@ -148,6 +200,8 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     const post = state.surveys.find((s) => s.id === comparison?.post_survey_id) ?? ready.at(-1) ?? null;
     const features = await map.showPair({ pre, post, comparison });
     renderDetections(features);
+    reports.setComparison(comparison?.status === "succeeded" ? comparison.id : null);
+    if (($("downloads-section") as HTMLDetailsElement).open) await downloads.show(state.surveys, comparison);
   }
 
   async function loadComparisons(showLatest: boolean): Promise<void> {
@@ -334,5 +388,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   await loadComparisons(true);
   jobs.show(await getJson<Job[]>(`sites/${siteId}/jobs`));
   map.invalidateSize();
-  return () => jobs.close();
+  return () => {
+    jobs.close();
+    reports.close();
+    alerts.close();
+  };
 }

@@ -1,0 +1,132 @@
+// People on the Account page: the members of each organisation this user manages (give a
+// user a role, take it away) and, for the platform administrator, every user (create one,
+// disable or enable one).
+
+import { ApiError, api, getJson, postJson, putJson } from "../api";
+import { escapeHtml, formatDateTime } from "../format";
+import { failure } from "./tools";
+
+interface Organisation {
+  id: number;
+  name: string;
+  role: string | null;
+}
+
+interface Member {
+  username: string;
+  display_name: string;
+  role: string;
+}
+
+interface UserAccount {
+  id: number;
+  username: string;
+  display_name: string;
+  last_login_at: string | null;
+  disabled_at: string | null;
+}
+
+const ROLES = ["viewer", "analyst", "manager", "admin"];
+const roleOptions = (selected = "viewer") =>
+  ROLES.map((r) => `<option value="${r}"${r === selected ? " selected" : ""}>${r}</option>`).join("");
+
+function membersHtml(org: Organisation, members: Member[]): string {
+  const rows = members
+    .map(
+      (m) => `<tr><td>${escapeHtml(m.username)}</td><td>${escapeHtml(m.display_name)}</td><td>${escapeHtml(m.role)}</td>
+        <td><button type="button" data-remove-member="${escapeHtml(m.username)}" data-org="${org.id}"
+          aria-label="Remove ${escapeHtml(m.username)} from ${escapeHtml(org.name)}">Remove</button></td></tr>`,
+    )
+    .join("");
+  return `<h3>${escapeHtml(org.name)}</h3>
+    <table class="members"><tbody>${rows}</tbody></table>
+    <form data-add-member="${org.id}">
+      <label for="member-name-${org.id}">Give a user a role in ${escapeHtml(org.name)}</label>
+      <input id="member-name-${org.id}" name="username" required maxlength="100" placeholder="user name">
+      <select name="role" aria-label="Role">${roleOptions()}</select>
+      <button type="submit">Add member</button>
+    </form>`;
+}
+
+function usersHtml(users: UserAccount[]): string {
+  return `<table class="users"><tbody>${users
+    .map(
+      (u) => `<tr data-user="${u.id}"><td>${escapeHtml(u.username)}</td><td>${escapeHtml(u.display_name)}</td>
+        <td class="muted">${u.disabled_at ? "disabled" : `last sign-in ${escapeHtml(formatDateTime(u.last_login_at, "UTC"))}`}</td>
+        <td><button type="button" data-user-action="${u.disabled_at ? "enable" : "disable"}" data-id="${u.id}">${
+          u.disabled_at ? "Enable" : "Disable"
+        }</button></td></tr>`,
+    )
+    .join("")}</tbody></table>
+    <form id="new-user">
+      <label for="new-user-name">New user's name</label><input id="new-user-name" required maxlength="100">
+      <label for="new-user-display">Full name</label><input id="new-user-display" maxlength="200">
+      <label for="new-user-password">Password (at least 8 characters; they change it)</label>
+      <input id="new-user-password" type="password" autocomplete="new-password" required>
+      <button type="submit">Create user</button>
+    </form>`;
+}
+
+export class PeoplePanel {
+  constructor(private readonly box: HTMLElement) {
+    box.addEventListener("submit", (event) => {
+      event.preventDefault();
+      const form = event.target as HTMLFormElement;
+      if (form.dataset.addMember) {
+        const data = new FormData(form);
+        void this.act(() =>
+          putJson(`organisations/${form.dataset.addMember}/members/${encodeURIComponent(String(data.get("username")).trim())}`, {
+            role: data.get("role"),
+          }),
+        );
+      } else if (form.id === "new-user") {
+        const value = (id: string) => (form.querySelector(`#${id}`) as HTMLInputElement).value;
+        void this.act(() =>
+          postJson("users", {
+            username: value("new-user-name").trim(),
+            display_name: value("new-user-display").trim(),
+            password: value("new-user-password"),
+          }),
+        );
+      }
+    });
+    box.addEventListener("click", (event) => {
+      const target = event.target as HTMLElement;
+      const member = target.closest<HTMLElement>("[data-remove-member]");
+      if (member && window.confirm(`Take away every role of ${member.dataset.removeMember} in this organisation?`))
+        void this.act(() =>
+          api(`organisations/${member.dataset.org}/members/${encodeURIComponent(member.dataset.removeMember ?? "")}`, {
+            method: "DELETE",
+          }),
+        );
+      const user = target.closest<HTMLElement>("[data-user-action]");
+      if (user) void this.act(() => postJson(`users/${user.dataset.id}/${user.dataset.userAction}`, {}));
+    });
+  }
+
+  private async act(action: () => Promise<unknown>): Promise<void> {
+    const error = this.box.querySelector("#people-error") as HTMLElement | null;
+    try {
+      await action();
+      await this.load();
+    } catch (e) {
+      if (error) error.textContent = failure(e);
+    }
+  }
+
+  async load(): Promise<void> {
+    const organisations = await getJson<Organisation[]>("organisations").catch(() => [] as Organisation[]);
+    const managed = organisations.filter((o) => o.role === "manager" || o.role === "admin");
+    const members = await Promise.all(managed.map((o) => getJson<Member[]>(`organisations/${o.id}/members`).catch(() => [])));
+    // Only the platform administrator may list users: others are answered 403, and see none.
+    const users = await getJson<UserAccount[]>("users").catch((e) => {
+      if (e instanceof ApiError && e.status === 403) return null;
+      throw e;
+    });
+    const parts = managed.map((o, i) => membersHtml(o, members[i]));
+    if (users) parts.push(`<h3>Users</h3>${usersHtml(users)}`);
+    this.box.innerHTML = parts.length
+      ? `${parts.join("")}<p class="error" role="alert" id="people-error"></p>`
+      : `<p class="muted">You manage no organisation: ask a manager to give people roles.</p>`;
+  }
+}
