@@ -193,6 +193,19 @@ def test_sign_in_upload_compare_and_read_the_map(
         page.keyboard.press("ArrowRight")
     assert clip_right_edge(page, "pre") > after
     shot(page, "map-swipe", "map-swipe")
+    # The divider itself drags, and dragging it does not pan the map.
+    line = page.locator(".swipe-line").bounding_box()
+    assert line is not None
+    centre = page.evaluate("() => document.querySelector('.leaflet-map-pane').style.transform")
+    at = clip_right_edge(page, "pre")
+    page.mouse.move(line["x"] + line["width"] / 2, line["y"] + line["height"] / 2)
+    page.mouse.down()
+    page.mouse.move(line["x"] - 120, line["y"] + line["height"] / 2, steps=6)
+    page.mouse.up()
+    assert clip_right_edge(page, "pre") < at - 80
+    assert (
+        page.evaluate("() => document.querySelector('.leaflet-map-pane').style.transform") == centre
+    )
 
     # Opacity of a layer.
     page.get_by_label("Post survey opacity (%)").fill("40")

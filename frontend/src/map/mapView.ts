@@ -212,6 +212,26 @@ export class MapView {
       this.swipeFraction = Number(input.value) / 100;
       this.applySwipe();
     });
+    // The divider itself is draggable too (the slider stays for keyboards and a thumb).
+    const line = box.querySelector(".swipe-line") as HTMLElement;
+    line.addEventListener("pointerdown", (down) => {
+      down.preventDefault();
+      line.setPointerCapture(down.pointerId);
+      const move = (event: PointerEvent) => {
+        const rect = container.getBoundingClientRect();
+        this.swipeFraction = Math.min(1, Math.max(0, (event.clientX - rect.left) / rect.width));
+        input.value = String(Math.round(this.swipeFraction * 100));
+        this.applySwipe();
+      };
+      const up = () => {
+        line.removeEventListener("pointermove", move);
+        line.removeEventListener("pointerup", up);
+        line.removeEventListener("pointercancel", up);
+      };
+      line.addEventListener("pointermove", move);
+      line.addEventListener("pointerup", up);
+      line.addEventListener("pointercancel", up);
+    });
     L.DomEvent.disableClickPropagation(box);
     // Leaflet drags the map on pointer events: dragging the divider must not pan it.
     L.DomEvent.on(box, "pointerdown touchstart", L.DomEvent.stopPropagation);
