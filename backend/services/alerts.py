@@ -636,8 +636,9 @@ def email_text(payload: dict[str, Any]) -> str:
         lines.append(payload.get("message", "A test from slidewatch."))
     elif payload["event"] == "report_ready":
         report = payload["report"]
+        found = report["detections"]
         lines.append(
-            f"Report {report['id']} is ready ({report['detections']} landslides); "
+            f"Report {report['id']} is ready ({found} landslide{'' if found == 1 else 's'}); "
             "the PDF is attached."
         )
     lines.append("")

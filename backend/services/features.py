@@ -172,11 +172,20 @@ def _surveys_query(q: FeatureQuery) -> Select:
 # --- detections -------------------------------------------------------------------------
 
 _Post = aliased(Survey)
+_Earlier = aliased(Detection)
+# A detection's label, 1…n in its comparison (as in the page, its GeoJSON and the report):
+# how many of its comparison's detections come before it, itself included.
+_LABEL = (
+    select(func.count())
+    .where(_Earlier.comparison_id == Detection.comparison_id, _Earlier.id <= Detection.id)
+    .correlate(Detection)
+    .scalar_subquery()
+)
 
 
 def _detections_query(q: FeatureQuery) -> Select:
     query = (
-        select(Detection, Comparison, _Post.captured_at)
+        select(Detection, Comparison, _Post.captured_at, _LABEL)
         .join(Comparison, Detection.comparison_id == Comparison.id)
         .join(_Post, Comparison.post_survey_id == _Post.id)
         .where(Comparison.status == JobState.succeeded)
@@ -204,7 +213,7 @@ def _detections_query(q: FeatureQuery) -> Select:
 
 
 def _detection_feature(
-    detection: Detection, comparison: Comparison, observed_at: datetime
+    detection: Detection, comparison: Comparison, observed_at: datetime, label: int
 ) -> dict[str, Any]:
     return {
         "type": "Feature",
@@ -213,6 +222,7 @@ def _detection_feature(
         "properties": {
             "site_id": comparison.site_id,
             "comparison_id": comparison.id,
+            "label": label,
             "pre_survey_id": comparison.pre_survey_id,
             "post_survey_id": comparison.post_survey_id,
             "datetime": rfc3339(observed_at),
@@ -255,7 +265,7 @@ def query_features(
         query = _detections_query(q)
         matched = session.scalar(select(func.count()).select_from(query.subquery())) or 0
         rows = session.execute(query.order_by(Detection.id).limit(q.limit).offset(q.offset))
-        return [_detection_feature(d, c, at) for d, c, at in rows], matched
+        return [_detection_feature(*row) for row in rows], matched
     if collection_id == "surveys":
         surveys = [
             s

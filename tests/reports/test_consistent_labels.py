@@ -56,6 +56,10 @@ def test_a_detection_has_one_label_everywhere_and_times_are_the_sites(
     labels = [f["properties"]["label"] for f in features]
     assert labels == list(range(1, len(features) + 1)) and labels
     assert [f["id"] for f in features] != labels  # the label is not the database id
+    ogc = client.get(
+        "/ogc/collections/detections/items", params={"comparison_id": comparison}, headers=auth
+    ).json()
+    assert [f["properties"]["label"] for f in ogc["features"]] == labels
 
     for file_format, suffix, media_type in (
         ("gpkg", "gpkg", "application/geopackage+sqlite3"),

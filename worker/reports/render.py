@@ -88,7 +88,8 @@ def change_text(data: ReportData) -> str:
     if change.same_comparison:
         return f"No new comparison since {since}: the landslides are those reported then."
     return (
-        f"Since {since}: {change.detections:+d} landslides, "
+        f"Since {since}: {change.detections:+d} "
+        f"landslide{'' if abs(change.detections) == 1 else 's'}, "
         f"area {change.total_area_m2:+.1f} m², loss {change.total_volume_loss_m3:+.1f} m³, "
         f"gain {change.total_volume_gain_m3:+.1f} m³."
     )
