@@ -7,13 +7,19 @@ import { escapeHtml, formatBytes, formatDate } from "../format";
 import type { Comparison, Product, Survey } from "../types";
 import { download, failure } from "./tools";
 
+// The pipeline's product kinds (worker/pipeline: reconstruction, comparison, methods).
 const PRODUCT_NAMES: Record<string, string> = {
   dsm: "DSM (Cloud-Optimized GeoTIFF)",
   orthophoto: "Orthophoto (Cloud-Optimized GeoTIFF)",
-  point_cloud: "Point cloud",
-  dense_point_cloud: "Point cloud",
+  points: "Point cloud (PLY)",
+  trajectory: "Flight trajectory (GeoJSON)",
+  report: "Reconstruction report (JSON)",
   dh: "Δh, elevation change (Cloud-Optimized GeoTIFF)",
+  post_coregistered: "Post DSM co-registered onto pre (GeoTIFF)",
+  significance: "Significant change mask (GeoTIFF)",
+  lod: "Level of detection, LoD95 (GeoTIFF)",
   probability: "Landslide probability (Cloud-Optimized GeoTIFF)",
+  cells: "Probability cells (GeoJSON)",
   detections: "Detections as stored by the pipeline (GeoJSON)",
 };
 
