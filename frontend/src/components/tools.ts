@@ -2,6 +2,7 @@
 // button, words with their number, and the time zones to choose from.
 
 import { ApiError, authHeaders, errorMessage } from "../api";
+import { escapeHtml } from "../format";
 import "./panels.css";
 
 /** "1 detection", "2 detections": the count and the word that goes with it. */
@@ -19,10 +20,10 @@ export function timeZones(): string[] {
 /** An input that searches the zones as one types (a datalist), with the zones attached. */
 export function timeZoneField(id: string, value: string, label: string): string {
   const options = timeZones()
-    .map((z) => `<option value="${z.replace(/"/g, "&quot;")}">`)
+    .map((z) => `<option value="${escapeHtml(z)}">`)
     .join("");
   return `<label for="${id}">${label}</label>
-    <input id="${id}" list="${id}-zones" required autocomplete="off" spellcheck="false" value="${value.replace(/"/g, "&quot;")}">
+    <input id="${id}" list="${id}-zones" required autocomplete="off" spellcheck="false" value="${escapeHtml(value)}">
     <datalist id="${id}-zones">${options}</datalist>`;
 }
 

@@ -1,14 +1,10 @@
 // The list of sites, and a form for a new one.
 
 import { ApiError, getJson, postJson } from "../api";
+import { timeZoneField } from "../components/tools";
 import { escapeHtml, formatDate } from "../format";
 import type { Site } from "../types";
 import { header, wireSignOut } from "./header";
-
-function timeZones(): string[] {
-  const supported = (Intl as unknown as { supportedValuesOf?: (k: string) => string[] }).supportedValuesOf;
-  return supported ? supported("timeZone") : ["UTC"];
-}
 
 export async function renderSites(app: HTMLElement): Promise<void> {
   app.innerHTML = `${header("<span>Sites</span>")}
@@ -19,9 +15,11 @@ export async function renderSites(app: HTMLElement): Promise<void> {
         <h2>New site</h2>
         <label for="site-name">Name</label><input id="site-name" required maxlength="200">
         <label for="site-description">Description</label><input id="site-description">
-        <label for="site-timezone">Time zone (times of the site are shown in it)</label>
-        <input id="site-timezone" list="timezones" required value="${escapeHtml(Intl.DateTimeFormat().resolvedOptions().timeZone || "UTC")}">
-        <datalist id="timezones">${timeZones().map((z) => `<option value="${escapeHtml(z)}">`).join("")}</datalist>
+        ${timeZoneField(
+          "site-timezone",
+          Intl.DateTimeFormat().resolvedOptions().timeZone || "UTC",
+          "Time zone (times of the site are shown in it; type to search)",
+        )}
         <button type="submit">Create site</button>
         <p class="error" role="alert" id="site-error"></p>
       </form>
