@@ -96,6 +96,7 @@ class MapConfig(BaseModel):
 class DetectionHistoryOut(BaseModel):
     comparison_id: int
     detection_id: int
+    label: int = Field(description="The detection's number in its comparison (1…n).")
     pre_captured_at: datetime
     post_captured_at: datetime
     area_m2: float

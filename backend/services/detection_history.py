@@ -21,6 +21,7 @@ from shapely.geometry import shape
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from backend.db.detections import detection_labels
 from backend.db.models import Comparison, Detection
 
 EARTH_RADIUS_M = 6371008.8
@@ -30,6 +31,7 @@ EARTH_RADIUS_M = 6371008.8
 class HistoryEntry:
     comparison_id: int
     detection_id: int
+    label: int  # the detection's number in its comparison (1…n), as the page shows it
     pre_captured_at: datetime
     post_captured_at: datetime
     area_m2: float
@@ -90,6 +92,7 @@ def detection_history(session: Session, detection: Detection) -> list[HistoryEnt
             HistoryEntry(
                 comparison_id=owner.id,
                 detection_id=other.id,
+                label=detection_labels(owner)[other.id],
                 pre_captured_at=owner.pre_survey.captured_at,
                 post_captured_at=owner.post_survey.captured_at,
                 area_m2=other.area_m2,

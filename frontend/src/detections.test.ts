@@ -80,7 +80,7 @@ describe("a detection's position", () => {
 
 describe("a detection's history", () => {
   const entry = (id: number, post: string, area: number, self: boolean): HistoryEntry => ({
-    comparison_id: id, detection_id: id * 10, pre_captured_at: "2026-06-01T10:00:00Z", post_captured_at: post,
+    comparison_id: id, detection_id: id * 10, label: 1, pre_captured_at: "2026-06-01T10:00:00Z", post_captured_at: post,
     area_m2: area, volume_loss_m3: area / 2, volume_gain_m3: 0, max_abs_dh_m: 2, score: 1, overlap: self ? 1 : 0.85, this: self,
   });
   it("lists the same ground in time order, this comparison marked", () => {
@@ -88,6 +88,7 @@ describe("a detection's history", () => {
     expect(html).toContain("1 Jul 2026 (this one)");
     expect(html).toContain("2,600 m²");
     expect(html).toContain("85 %");
+    expect(html).toContain("2 · detection 1");
   });
   it("says when nothing else was found there", () => {
     expect(historyHtml([entry(1, "2026-07-01T10:00:00Z", 2000, true)], "UTC")).toContain("No other comparison");

@@ -115,6 +115,7 @@ export function positionHtml([lat, lon]: [number, number]): string {
 export interface HistoryEntry {
   comparison_id: number;
   detection_id: number;
+  label: number;
   pre_captured_at: string;
   post_captured_at: string;
   area_m2: number;
@@ -131,11 +132,11 @@ export function historyHtml(entries: HistoryEntry[], timeZone: string): string {
   if (entries.length <= 1) return `<p class="muted">No other comparison of this site found a change here.</p>`;
   const rows = entries
     .map(
-      (e) => `<tr${e.this ? ' class="this"' : ""}><td>${escapeHtml(formatDate(e.pre_captured_at, timeZone))} → ${escapeHtml(
+      (e) => `<tr${e.this ? ' class="this"' : ""}><td>${e.comparison_id} · detection ${e.label}</td><td>${escapeHtml(formatDate(e.pre_captured_at, timeZone))} → ${escapeHtml(
         formatDate(e.post_captured_at, timeZone),
       )}${e.this ? " (this one)" : ""}</td><td>${escapeHtml(formatArea(e.area_m2))}</td><td>${escapeHtml(formatVolume(e.volume_loss_m3))}</td><td>${Math.round(e.overlap * 100)} %</td></tr>`,
     )
     .join("");
-  return `<table class="history"><thead><tr><th scope="col">Surveys</th><th scope="col">Area</th><th scope="col">Lost</th><th scope="col">Overlap</th></tr></thead><tbody>${rows}</tbody></table>`;
+  return `<table class="history"><thead><tr><th scope="col">Comparison</th><th scope="col">Surveys</th><th scope="col">Area</th><th scope="col">Lost</th><th scope="col">Overlap</th></tr></thead><tbody>${rows}</tbody></table>`;
 }
 

@@ -37,6 +37,7 @@ def test_a_landslide_is_followed_across_comparisons(
     # July with August found nothing there.
     assert [h["comparison_id"] for h in history] == [first, later]
     assert history[0]["this"] and history[0]["overlap"] == 1.0
+    assert history[0]["label"] == slide["properties"]["label"]
     assert not history[1]["this"] and history[1]["overlap"] > 0.8
     assert (
         abs(history[1]["area_m2"] - slide["properties"]["area_m2"])
