@@ -277,6 +277,9 @@ def test_sign_in_upload_compare_and_read_the_map(
     assert popup_box["y"] >= max(0.0, header["y"] + header["height"]) - 1, (popup_box, header)
     assert popup_box["y"] + popup_box["height"] <= 844 + 1, popup_box
     shot(page, "map-phone", "map-phone")
+    # The upload form, at the end of a long stacked page, is one tap away.
+    page.get_by_role("button", name="Go to the upload form").click()
+    expect(page.get_by_role("heading", name="Upload a survey")).to_be_in_viewport()
 
 
 def test_a_cut_connection_and_a_reload_resume_the_upload(

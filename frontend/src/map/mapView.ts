@@ -425,7 +425,11 @@ export class MapView {
         );
         this.legendBox.append(forLayers(differenceLegend(range), "dh"));
       }
-      features = await this.showDetections(site, comparison);
+      // A comparison deleted while it was being drawn: a newer showPair has taken over.
+      features = await this.showDetections(site, comparison).catch((error: unknown) => {
+        if (generation !== this.generation) return [];
+        throw error;
+      });
       this.legendBox.append(forLayers(scoreLegend(), "detections"));
     }
     for (const key of RASTERS) this.setOpacity(key, this.opacity.get(key) ?? 1);

@@ -33,6 +33,14 @@ interface State {
   shown: Comparison | null;
 }
 
+const JUMPS: Array<[string, string]> = [
+  // Names that no other button's contains (tests and screen readers find buttons by name).
+  ["upload-title", "Go to the upload form"],
+  ["compare-title", "Go to comparing"],
+  ["detections-title", "Go to the detections list"],
+  ["tools-title", "Go to reports and downloads"],
+];
+
 function comparisonLabel(c: Comparison, surveys: Survey[], timeZone: string): string {
   const name = (id: number) => {
     const s = surveys.find((x) => x.id === id);
@@ -56,6 +64,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     <main id="main" class="site-layout">
       <aside class="sidebar" aria-label="Site">
         <h1>${escapeHtml(site.name)}</h1>
+        <nav class="jump" aria-label="On this page">${JUMPS.map(([id, label]) => `<button type="button" data-jump="${id}">${label}</button>`).join("")}</nav>
         <p class="muted">Times in <span id="site-timezone">${escapeHtml(site.timezone)}</span>. ${escapeHtml(site.description)}</p>
         <p class="row-actions"><button type="button" id="rename-site">Rename site</button>
           <button type="button" id="delete-site">Delete site</button>
@@ -95,8 +104,20 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       <div class="map-wrap"><div id="map" role="region" aria-label="Map of ${escapeHtml(site.name)}" tabindex="0"></div></div>
     </main>`;
   wireSignOut(app);
-  const $ = (id: string) => app.querySelector(`#${id}`) as HTMLElement;
+  // Once the page is left (the site deleted, another page shown), late answers of requests
+  // still in flight write into a detached element instead of failing on a missing one.
+  const $ = (id: string) => (app.querySelector(`#${id}`) as HTMLElement | null) ?? document.createElement("div");
   const map = new MapView($("map"), config);
+  // Jumps within the long sidebar (a phone stacks it under the map): buttons, since the
+  // page's router owns the URL's #.
+  app.querySelectorAll<HTMLButtonElement>("button[data-jump]").forEach((button) =>
+    button.addEventListener("click", () => {
+      const target = document.getElementById(button.dataset.jump ?? "");
+      target?.setAttribute("tabindex", "-1");
+      target?.scrollIntoView({ block: "start" });
+      target?.focus({ preventScroll: true });
+    }),
+  );
   const state: State = { site, surveys: [], comparisons: [], shown: null };
   const reports = new ReportsPanel($("reports"), siteId, site.timezone);
   const downloads = new DownloadsPanel($("downloads"), siteId, site.timezone);
