@@ -2,10 +2,14 @@
 job finish live, see the detections over the DSMs, swipe, open a detection and judge it;
 uploads that are cut or whose page is reloaded resume where they stopped."""
 
+import math
 import re
 from pathlib import Path
 
+import pytest
 from playwright.sync_api import Page, Request, Route, expect
+from pyproj import Transformer
+from shapely.geometry import Polygon
 
 from tests.api.test_survey_sources import garble_block
 from tests.e2e.conftest import USER, App, shot
@@ -233,14 +237,38 @@ def test_sign_in_upload_compare_and_read_the_map(
     def click_map(fx: float, fy: float) -> None:
         page.mouse.click(box["x"] + fx * box["width"], box["y"] + fy * box["height"])
 
+    def position(fx: float, fy: float) -> tuple[float, float]:
+        """Latitude and longitude of a point of the map, as the cursor readout gives them."""
+        x, y = box["x"] + fx * box["width"], box["y"] + fy * box["height"]
+        # The readout shows where the pointer's last event was: two events at the point.
+        page.mouse.move(x, y)
+        page.mouse.move(x, y)
+        page.wait_for_timeout(150)
+        text = page.locator(".map-cursor").inner_text()
+        lat, lon = re.findall(r"([\d.]+)° [NSEW]", text)[:2]
+        return float(lat), float(lon)
+
+    # Points in the middle of the map, clear of the controls on both sides; the truth is
+    # the UTM distance between the readout's positions (the site is in zone 32).
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True)
+    corners = [(0.4, 0.3), (0.66, 0.3), (0.66, 0.75), (0.4, 0.75)]
+    utm = [to_utm.transform(lon, lat) for lat, lon in (position(*c) for c in corners)]
     page.get_by_text("Measure", exact=True).click()
     page.get_by_role("button", name="Distance").click()
-    # Points in the middle of the map, clear of the controls on both sides.
-    click_map(0.4, 0.5)
-    click_map(0.65, 0.5)
+    click_map(*corners[0])
+    click_map(*corners[1])
     page.get_by_role("button", name="Finish").click()
     result = page.locator(".measure-result")
     expect(result).to_contain_text(re.compile(r"Distance: [\d,.]+ m"))
+    shown = float(re.search(r"Distance: ([\d,.]+) m", result.inner_text())[1].replace(",", ""))
+    assert shown == pytest.approx(math.dist(utm[0], utm[1]), rel=0.01)
+    page.get_by_role("button", name="Area").click()
+    for corner in corners:
+        click_map(*corner)
+    page.get_by_role("button", name="Finish").click()
+    expect(result).to_contain_text(re.compile(r"Area: [\d,.]+ m²"))
+    area = float(re.search(r"Area: ([\d,.]+) m²", result.inner_text())[1].replace(",", ""))
+    assert area == pytest.approx(Polygon(utm).area, rel=0.01)
     page.get_by_role("button", name="Elevation profile").click()
     click_map(0.42, 0.4)
     click_map(0.66, 0.6)
