@@ -604,3 +604,45 @@ def test_a_reload_during_a_processed_video_upload_resumes_it(
     job = page.locator(".job").first
     expect(job).to_have_class(re.compile("job-succeeded"), timeout=JOB_TIMEOUT_MS)
     expect(page.locator(".survey-list")).to_contain_text("Resumed flight")
+
+
+def test_the_time_stepper_goes_through_every_survey(
+    page: Page, app_server: App, dsm_pair: DsmPairPaths
+) -> None:
+    """Three surveys of a site, stepped through one at a time, in time order."""
+    import httpx
+
+    with httpx.Client(base_url=f"{app_server.url}/api/v1", timeout=60) as api:
+        api.headers["Authorization"] = (
+            "Bearer " + api.post("/auth/sign-in", json=USER).json()["token"]
+        )
+        site = api.post("/sites", json={"name": "Three flights"}).json()["id"]
+        # Uploaded out of time order: the stepper orders them by when they were flown.
+        for path, name, at in (
+            (dsm_pair.post, "July", "2026-07-01T10:00:00Z"),
+            (dsm_pair.pre, "June", "2026-06-01T10:00:00Z"),
+            (dsm_pair.pre, "August", "2026-08-01T10:00:00Z"),
+        ):
+            made = api.post(
+                f"/sites/{site}/surveys",
+                params={"captured_at": at, "filename": path.name, "name": name},
+                content=path.read_bytes(),
+                headers={"Content-Type": "image/tiff"},
+            )
+            assert made.status_code == 201, made.text
+    sign_in(page, app_server)
+    page.goto(f"{app_server.url}/#/sites/{site}")
+    expect(page.get_by_role("heading", name="Three flights", level=1)).to_be_visible()
+    page.get_by_text("Time", exact=True).click()
+    page.get_by_label("Step through the 3 ready surveys").check()
+    label = page.locator(".map-time .time-label")
+    stepper = page.get_by_label("Survey shown")
+    for expected in ("(3 of 3)", "(2 of 3)", "(1 of 3)"):
+        expect(label).to_contain_text(expected)
+        expect(page.locator(".leaflet-post-pane img.leaflet-tile-loaded").first).to_be_attached()
+        stepper.press("ArrowLeft")
+    names = []
+    for _ in range(3):
+        names.append(label.inner_text().split(" · ")[0])
+        stepper.press("ArrowRight")
+    assert names == ["June", "July", "August"], names
