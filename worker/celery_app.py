@@ -10,6 +10,8 @@ Two kinds of Celery app, one configuration (`celery_config`):
   imports task names from these modules and must not read the environment through them.
 """
 
+import logging
+
 from celery import Celery
 
 from backend.config import Settings, get_settings
@@ -21,6 +23,22 @@ MONITORING_TICK_TASK = "slidewatch.monitoring_tick"
 QUEUE = "slidewatch"
 # Reports and model training are jobs: their stages run as RUN_STAGE_TASK (worker.tasks).
 TASK_MODULES = ["worker.tasks", "worker.tasks_monitoring"]
+
+
+class QuietSweeps(logging.Filter):
+    """Drops the INFO lines of the recovery sweep (sent, received, succeeded): beat sends it
+    every few seconds, and three lines a sweep would bury the log people read. What the
+    sweep finds is logged as a warning, which passes."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno > logging.INFO:
+            return True
+        message = record.getMessage()
+        return RECOVER_TASK not in message and "recover-stalled-jobs" not in message
+
+
+for _name in ("celery.beat", "celery.worker.strategy", "celery.app.trace"):
+    logging.getLogger(_name).addFilter(QuietSweeps())
 
 
 def transport_options(settings: Settings) -> dict[str, object]:
