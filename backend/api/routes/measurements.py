@@ -38,6 +38,16 @@ def _product_path(storage: LocalStorage, products: list[Product], kind: str) -> 
     return path if path.is_file() else None
 
 
+def _comparison_rasters(storage: LocalStorage, comparison: Comparison) -> dict[str, Path | None]:
+    """The rasters a comparison is measured on: the pre DSM, the co-registered post DSM
+    (on the pre's grid) and Δh; None where one is not made (yet)."""
+    return {
+        "pre": _product_path(storage, comparison.pre_survey.products, "dsm"),
+        "post": _product_path(storage, comparison.products, "post_coregistered"),
+        "dh": _product_path(storage, comparison.products, "dh"),
+    }
+
+
 def _need(path: Path | None, what: str) -> Path:
     if path is None:
         raise HTTPException(status.HTTP_409_CONFLICT, f"{what} does not exist yet")
@@ -56,14 +66,9 @@ async def comparison_profile(
     session: SessionDep,
     storage: StorageDep,
 ) -> ProfileOut:
-    comparison: Comparison = comparison_of_site(session, site, comparison_id)
-    pre = _need(
-        _product_path(storage, comparison.pre_survey.products, "dsm"), "the pre survey's DSM"
-    )
-    post = _need(
-        _product_path(storage, comparison.products, "post_coregistered"),
-        "the comparison's co-registered post DSM (it has not run)",
-    )
+    rasters = _comparison_rasters(storage, comparison_of_site(session, site, comparison_id))
+    pre = _need(rasters["pre"], "the pre survey's DSM")
+    post = _need(rasters["post"], "the comparison's co-registered post DSM (it has not run)")
     return await _profile(body, {"pre": pre, "post": post})
 
 
@@ -137,12 +142,7 @@ async def comparison_heights(
     session: SessionDep,
     storage: StorageDep,
 ) -> dict[str, float | None]:
-    comparison = comparison_of_site(session, site, comparison_id)
-    rasters = {
-        "pre": _product_path(storage, comparison.pre_survey.products, "dsm"),
-        "post": _product_path(storage, comparison.products, "post_coregistered"),
-        "dh": _product_path(storage, comparison.products, "dh"),
-    }
+    rasters = _comparison_rasters(storage, comparison_of_site(session, site, comparison_id))
     found = {name: path for name, path in rasters.items() if path is not None}
     values = await run_in_threadpool(heights_at, lon, lat, found)
     return {name: values.get(name) for name in rasters}
