@@ -1,17 +1,14 @@
 """Fixtures shared by the whole suite: real databases, real brokers, real files."""
 
 import os
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import redis
-from sqlalchemy import create_engine
-from sqlalchemy.engine import make_url
 
 from backend.config import Settings
-from tests.databases import TEST_DATABASE_URL
+from tests.databases import empty_postgres_database
 
 TEST_REDIS_URL = os.environ.get("SLIDEWATCH_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
 
@@ -19,16 +16,8 @@ TEST_REDIS_URL = os.environ.get("SLIDEWATCH_TEST_REDIS_URL", "redis://127.0.0.1:
 @pytest.fixture
 def postgres_url() -> Iterator[str]:
     """A new empty database on the test PostgreSQL server, dropped afterwards."""
-    admin = create_engine(TEST_DATABASE_URL, isolation_level="AUTOCOMMIT")
-    name = f"slidewatch_test_{uuid.uuid4().hex[:12]}"
-    with admin.connect() as connection:
-        connection.exec_driver_sql(f'CREATE DATABASE "{name}"')
-    try:
-        yield make_url(TEST_DATABASE_URL).set(database=name).render_as_string(hide_password=False)
-    finally:
-        with admin.connect() as connection:
-            connection.exec_driver_sql(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-        admin.dispose()
+    with empty_postgres_database() as url:
+        yield url
 
 
 @pytest.fixture

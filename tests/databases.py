@@ -13,6 +13,8 @@ import os
 import sqlite3
 import tempfile
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
 
@@ -92,3 +94,18 @@ def migrate_new_database(url: str) -> None:
     finally:
         source.close()
         destination.close()
+
+
+@contextmanager
+def empty_postgres_database() -> Iterator[str]:
+    """The URL of a new empty database on the test PostgreSQL server, dropped afterwards."""
+    admin = create_engine(TEST_DATABASE_URL, isolation_level="AUTOCOMMIT")
+    name = f"slidewatch_test_{uuid.uuid4().hex[:12]}"
+    with admin.connect() as connection:
+        connection.exec_driver_sql(f'CREATE DATABASE "{name}"')
+    try:
+        yield make_url(TEST_DATABASE_URL).set(database=name).render_as_string(hide_password=False)
+    finally:
+        with admin.connect() as connection:
+            connection.exec_driver_sql(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        admin.dispose()

@@ -2,36 +2,25 @@
 beyond their range break), with rows to find: a site with surveys, comparisons and
 detections, a DSM with its COG product, a user, a schedule and a webhook."""
 
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from fastapi import FastAPI
-from sqlalchemy import create_engine
-from sqlalchemy.engine import make_url
 
 from backend.config import Settings
 from backend.db.models import Schedule, Webhook
 from backend.services.users import create_user
 from tests.api_helpers import upload_dsm
-from tests.databases import TEST_DATABASE_URL
+from tests.databases import empty_postgres_database
 from tests.monitoring_helpers import app_for, seed_detections, token_for
 from worker.simulator.dsm_pair import make_dsm_pair, write_dsm_pair
 
 
 @pytest.fixture(scope="module")
 def fuzz_database() -> Iterator[str]:
-    admin = create_engine(TEST_DATABASE_URL, isolation_level="AUTOCOMMIT")
-    name = f"slidewatch_test_{uuid.uuid4().hex[:12]}"
-    with admin.connect() as connection:
-        connection.exec_driver_sql(f'CREATE DATABASE "{name}"')
-    try:
-        yield make_url(TEST_DATABASE_URL).set(database=name).render_as_string(hide_password=False)
-    finally:
-        with admin.connect() as connection:
-            connection.exec_driver_sql(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-        admin.dispose()
+    with empty_postgres_database() as url:
+        yield url
 
 
 @pytest.fixture(scope="module")
