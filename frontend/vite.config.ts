@@ -12,5 +12,5 @@ export default defineConfig({
       "/app-config.json": "http://127.0.0.1:8000",
     },
   },
-  test: { environment: "happy-dom", include: ["src/**/*.test.ts"] },
+  test: { environment: "happy-dom", include: ["src/**/*.test.ts"], setupFiles: ["src/i18n/testSetup.ts"] },
 });

@@ -1,5 +1,6 @@
 // The REST API with the signed-in token; errors carry the server's plain-words reason.
 
+import { currentLocale, t } from "./i18n";
 import type { MapConfig } from "./types";
 
 const TOKEN_KEY = "slidewatch.token";
@@ -23,7 +24,7 @@ export function errorMessage(body: unknown, status: number): string {
       .map((d: { loc?: unknown[]; msg?: string }) => `${(d.loc ?? []).slice(1).join(".")}: ${d.msg ?? ""}`)
       .join("; ");
   }
-  return `the server answered ${status}`;
+  return t("error.serverAnswered", { status });
 }
 
 export const session = {
@@ -55,7 +56,12 @@ export function authHeaders(): Record<string, string> {
 }
 
 export async function api<T>(path: string, init: RequestInit = {}): Promise<T> {
-  const headers: Record<string, string> = { ...authHeaders(), ...(init.headers as Record<string, string>) };
+  // The page's language goes with each request, for the answers the server words itself.
+  const headers: Record<string, string> = {
+    "Accept-Language": currentLocale(),
+    ...authHeaders(),
+    ...(init.headers as Record<string, string>),
+  };
   if (init.body && typeof init.body === "string") headers["Content-Type"] = "application/json";
   const response = await fetch(path.startsWith("/") ? path : `/api/v1/${path}`, { ...init, headers });
   if (response.status === 401 && session.token) {

@@ -1,6 +1,7 @@
 // How detections look on the map and what their popup says.
 
-import { escapeHtml, formatArea, formatDate, formatDateTime, formatMetres, formatVolume } from "./format";
+import { escapeHtml, formatArea, formatDate, formatDateTime, formatFixed, formatMetres, formatVolume, percent } from "./format";
+import { t } from "./i18n";
 import type { DetectionProperties } from "./types";
 import { formatLatLon, formatUtm, toUtm } from "./map/utm";
 
@@ -46,7 +47,6 @@ export function cellStyle(): PathStyle {
   return { color: "#7b2cbf", weight: 1, fillColor: "#7b2cbf", fillOpacity: 0.12, opacity: 0.8 };
 }
 
-const VERDICT_WORDS = { confirmed: "confirmed landslide", false_alarm: "false alarm" } as const;
 
 /** "812 m² (95 %: 760–870 m²)": the value and its 95 % interval, the unit said once when
  * both ends share it; the value alone when the method gives no interval (cnn). */
@@ -59,7 +59,7 @@ export function withInterval(
   const [low, high] = interval.map(format);
   const unit = / \S+$/.exec(high)?.[0];
   const lowText = unit && low.endsWith(unit) ? low.slice(0, -unit.length) : low;
-  return `${format(value)} (95 %: ${lowText}–${high})`;
+  return t("popup.withInterval", { value: format(value), level: percent(95), low: lowText, high });
 }
 
 /** The popup's table: every number with its unit; text escaped. */
@@ -73,31 +73,37 @@ export function detectionPopupHtml(
 ): string {
   const u = p.uncertainty ?? {};
   const rows: Array<[string, string]> = [
-    ["Area", withInterval(p.area_m2, u.area_m2_ci95, formatArea)],
-    ["Volume lost", withInterval(p.volume_loss_m3, u.volume_loss_m3_ci95, formatVolume)],
-    ["Volume gained", withInterval(p.volume_gain_m3, u.volume_gain_m3_ci95, formatVolume)],
-    ["Max |Δh|", formatMetres(p.max_abs_dh_m)],
-    ...(u.lod_m != null ? [["LoD (95 %)", formatMetres(u.lod_m)] as [string, string]] : []),
-    ["Score", p.score.toFixed(2)],
-    ["Method", p.method],
-    ["Model version", p.model_version ?? "none (the method runs no model)"],
+    [t("popup.area"), withInterval(p.area_m2, u.area_m2_ci95, formatArea)],
+    [t("popup.volumeLost"), withInterval(p.volume_loss_m3, u.volume_loss_m3_ci95, formatVolume)],
+    [t("popup.volumeGained"), withInterval(p.volume_gain_m3, u.volume_gain_m3_ci95, formatVolume)],
+    [t("popup.maxDh"), formatMetres(p.max_abs_dh_m)],
+    ...(u.lod_m != null ? [[t("popup.lod", { level: percent(95) }), formatMetres(u.lod_m)] as [string, string]] : []),
+    [t("popup.score"), formatFixed(p.score, 2)],
+    [t("popup.method"), p.method],
+    [t("popup.modelVersion"), p.model_version ?? t("popup.noModel")],
   ];
   const latest = p.feedback?.latest;
   const verdict = latest
-    ? `${VERDICT_WORDS[latest.verdict]} by ${latest.author}, ${formatDateTime(latest.at, timeZone)}`
-    : "no verdict yet";
+    ? t(latest.verdict === "confirmed" ? "popup.confirmedBy" : "popup.falseAlarmBy", {
+        author: latest.author,
+        when: formatDateTime(latest.at, timeZone),
+      })
+    : t("popup.noVerdict");
   return `
     <div class="popup" data-detection-id="${id}">
-      <h3>Detection ${p.label ?? id}</h3>
+      <h3>${t("popup.title", { label: p.label ?? id })}</h3>
       <table>${rows.map(([k, v]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(v)}</td></tr>`).join("")}</table>
       ${position ? positionHtml(position) : ""}
-      <p><button type="button" data-history>History of this ground</button></p>
+      <p><button type="button" data-history>${t("popup.history")}</button></p>
       <div data-role="history" aria-live="polite"></div>
-      <p class="verdict">Verdict: <span data-role="verdict">${escapeHtml(verdict)}</span>
-        (${p.feedback?.confirmed ?? 0} confirmed, ${p.feedback?.false_alarm ?? 0} false alarm)</p>
+      <p class="verdict">${t("popup.verdict", {
+        verdict: `<span data-role="verdict">${escapeHtml(verdict)}</span>`,
+        confirmed: p.feedback?.confirmed ?? 0,
+        falseAlarms: p.feedback?.false_alarm ?? 0,
+      })}</p>
       <div class="verdict-buttons">
-        <button type="button" data-verdict="confirmed">Confirm landslide</button>
-        <button type="button" data-verdict="false_alarm">False alarm</button>
+        <button type="button" data-verdict="confirmed">${t("popup.confirm")}</button>
+        <button type="button" data-verdict="false_alarm">${t("popup.falseAlarm")}</button>
       </div>
     </div>`;
 }
@@ -106,9 +112,9 @@ export function detectionPopupHtml(
  * copy is in its data-position. */
 export function positionHtml([lat, lon]: [number, number]): string {
   const text = `${formatLatLon(lat, lon)} (UTM ${formatUtm(toUtm(lat, lon))})`;
-  return `<p class="position" data-role="position">Centre: ${escapeHtml(formatLatLon(lat, lon))}<br>UTM ${escapeHtml(
+  return `<p class="position" data-role="position">${t("popup.centre", { position: escapeHtml(formatLatLon(lat, lon)) })}<br>UTM ${escapeHtml(
     formatUtm(toUtm(lat, lon)),
-  )}<br><button type="button" data-position="${escapeHtml(text)}">Copy position</button></p>`;
+  )}<br><button type="button" data-position="${escapeHtml(text)}">${t("popup.copyPosition")}</button></p>`;
 }
 
 /** One detection of the same ground in another comparison (GET …/detections/{id}/history). */
@@ -129,14 +135,14 @@ export interface HistoryEntry {
 
 /** The detection's ground over time: one row per comparison that found something there. */
 export function historyHtml(entries: HistoryEntry[], timeZone: string): string {
-  if (entries.length <= 1) return `<p class="muted">No other comparison of this site found a change here.</p>`;
+  if (entries.length <= 1) return `<p class="muted">${t("history.none")}</p>`;
   const rows = entries
     .map(
-      (e) => `<tr${e.this ? ' class="this"' : ""}><td>${e.comparison_id} · detection ${e.label}</td><td>${escapeHtml(formatDate(e.pre_captured_at, timeZone))} → ${escapeHtml(
+      (e) => `<tr${e.this ? ' class="this"' : ""}><td>${t("history.detection", { comparison: e.comparison_id, label: e.label })}</td><td>${escapeHtml(formatDate(e.pre_captured_at, timeZone))} → ${escapeHtml(
         formatDate(e.post_captured_at, timeZone),
-      )}${e.this ? " (this one)" : ""}</td><td>${escapeHtml(formatArea(e.area_m2))}</td><td>${escapeHtml(formatVolume(e.volume_loss_m3))}</td><td>${Math.round(e.overlap * 100)} %</td></tr>`,
+      )}${e.this ? ` ${t("history.thisOne")}` : ""}</td><td>${escapeHtml(formatArea(e.area_m2))}</td><td>${escapeHtml(formatVolume(e.volume_loss_m3))}</td><td>${percent(Math.round(e.overlap * 100))}</td></tr>`,
     )
     .join("");
-  return `<table class="history"><thead><tr><th scope="col">Comparison</th><th scope="col">Surveys</th><th scope="col">Area</th><th scope="col">Lost</th><th scope="col">Overlap</th></tr></thead><tbody>${rows}</tbody></table>`;
+  return `<table class="history"><thead><tr><th scope="col">${t("history.comparison")}</th><th scope="col">${t("history.surveys")}</th><th scope="col">${t("history.area")}</th><th scope="col">${t("history.lost")}</th><th scope="col">${t("history.overlap")}</th></tr></thead><tbody>${rows}</tbody></table>`;
 }
 

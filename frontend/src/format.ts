@@ -1,20 +1,32 @@
-// Numbers with their units, and times in the site's time zone.
+// Numbers with their units in the page's locale, and times in the site's time zone.
+
+import { currentLocale, t } from "./i18n";
 
 const nf = (digits: number) =>
-  new Intl.NumberFormat("en-GB", { maximumFractionDigits: digits, minimumFractionDigits: 0 });
+  new Intl.NumberFormat(currentLocale(), { maximumFractionDigits: digits, minimumFractionDigits: 0 });
+
+/** A number in the page's locale with up to `digits` decimals. */
+export function formatNumber(value: number, digits = 2): string {
+  return nf(digits).format(value);
+}
+
+/** A number with exactly `digits` decimals ("0.85"), as a score is shown. */
+export function formatFixed(value: number, digits: number): string {
+  return new Intl.NumberFormat(currentLocale(), { maximumFractionDigits: digits, minimumFractionDigits: digits }).format(value);
+}
 
 export function formatMetres(value: number | null | undefined, digits = 2): string {
-  return value == null || !Number.isFinite(value) ? "—" : `${nf(digits).format(value)} m`;
+  return value == null || !Number.isFinite(value) ? "—" : t("unit.metres", { value: nf(digits).format(value) });
 }
 
 export function formatArea(m2: number | null | undefined): string {
   if (m2 == null || !Number.isFinite(m2)) return "—";
-  if (Math.abs(m2) >= 100_000) return `${nf(2).format(m2 / 10_000)} ha`;
-  return `${nf(m2 < 100 ? 1 : 0).format(m2)} m²`;
+  if (Math.abs(m2) >= 100_000) return t("unit.hectares", { value: nf(2).format(m2 / 10_000) });
+  return t("unit.squareMetres", { value: nf(m2 < 100 ? 1 : 0).format(m2) });
 }
 
 export function formatVolume(m3: number | null | undefined): string {
-  return m3 == null || !Number.isFinite(m3) ? "—" : `${nf(m3 < 100 ? 1 : 0).format(m3)} m³`;
+  return m3 == null || !Number.isFinite(m3) ? "—" : t("unit.cubicMetres", { value: nf(m3 < 100 ? 1 : 0).format(m3) });
 }
 
 export function formatBytes(bytes: number): string {
@@ -25,18 +37,24 @@ export function formatBytes(bytes: number): string {
     value /= 1000;
     unit += 1;
   }
-  return `${nf(unit === 0 ? 0 : 1).format(value)} ${units[unit]}`;
+  return t("unit.bytes", { value: nf(unit === 0 ? 0 : 1).format(value), unit: units[unit] });
 }
 
+/** A whole percentage, rounded down (a progress never shows 100 before it is done). */
 export function formatPercent(fraction: number): string {
-  return `${Math.floor(Math.max(0, Math.min(1, fraction)) * 100)} %`;
+  return percent(Math.floor(Math.max(0, Math.min(1, fraction)) * 100));
 }
 
-/** "22 Nov 2026, 14:05 CET" in the site's time zone. */
+/** A percentage already in hundredths ("95 %", "95%" in Japanese). */
+export function percent(value: number): string {
+  return t("unit.percent", { value: nf(0).format(value) });
+}
+
+/** "22 Nov 2026, 14:05 CET" (en-GB), "2026年11月22日 14:05 JST" (ja) in the site's time zone. */
 export function formatDateTime(iso: string | null | undefined, timeZone: string): string {
   if (!iso) return "—";
   const date = parseApiTime(iso);
-  return new Intl.DateTimeFormat("en-GB", {
+  return new Intl.DateTimeFormat(currentLocale(), {
     timeZone,
     day: "numeric",
     month: "short",
@@ -49,7 +67,7 @@ export function formatDateTime(iso: string | null | undefined, timeZone: string)
 }
 
 export function formatDate(iso: string, timeZone: string): string {
-  return new Intl.DateTimeFormat("en-GB", {
+  return new Intl.DateTimeFormat(currentLocale(), {
     timeZone,
     day: "numeric",
     month: "short",
@@ -82,7 +100,7 @@ function zoneOffsetMs(utcMs: number, timeZone: string): number {
 /** A wall-clock time typed in the site's time zone ("2026-06-01T10:00") as a UTC instant. */
 export function zonedWallTimeToUtc(wall: string, timeZone: string): Date {
   const match = /^(\d{4})-(\d{2})-(\d{2})T(\d{2}):(\d{2})(?::(\d{2}))?$/.exec(wall);
-  if (!match) throw new Error(`"${wall}" is not a date and time`);
+  if (!match) throw new Error(t("error.notDateTime", { value: wall }));
   const [y, mo, d, h, mi, s] = match.slice(1).map((v) => Number(v ?? 0));
   const asUtc = Date.UTC(y, mo - 1, d, h, mi, s);
   // Two passes find the offset in force at that wall time, also next to a DST change.

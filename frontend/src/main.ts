@@ -2,6 +2,7 @@
 // hash (#/sites/3) so that the backend serves one index.html for all of them.
 
 import { mapConfig, session, whenSignedOut } from "./api";
+import { currentLanguage, onLanguageChange, t } from "./i18n";
 import { renderAccount } from "./pages/account";
 import { renderSignIn } from "./pages/signin";
 import { renderSite } from "./pages/site";
@@ -29,9 +30,22 @@ async function route(): Promise<void> {
   else renderSites(app);
 }
 
+/** What the page is in: <html lang>, its title's and the skip link's words. */
+function speak(): void {
+  document.documentElement.lang = currentLanguage();
+  const skip = document.querySelector(".skip-link");
+  if (skip) skip.textContent = t("page.skipToContent");
+}
+
 whenSignedOut(() => {
-  sessionStorage.setItem("slidewatch.notice", "Your session has ended: sign in again.");
+  sessionStorage.setItem("slidewatch.notice", t("signIn.sessionEnded"));
   void route();
 });
+// Another language chosen: the page drawn again in it (no reload, nothing typed is kept).
+onLanguageChange(() => {
+  speak();
+  void route();
+});
+speak();
 window.addEventListener("hashchange", () => void route());
 void route();

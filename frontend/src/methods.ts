@@ -2,7 +2,8 @@
 // says it detected. The page has no list of its own: the library's is the only one, so
 // the form's default is the API's and the CLI's.
 
-import { escapeHtml, formatMetres } from "./format";
+import { escapeHtml, formatMetres, formatNumber } from "./format";
+import { t } from "./i18n";
 import type { ComparisonDetection, DetectionMethod } from "./types";
 
 /** The `<option>`s of the method `<select>`, the default one selected and labelled so. */
@@ -10,7 +11,7 @@ export function methodOptionsHtml(methods: DetectionMethod[]): string {
   return methods
     .map(
       (m) =>
-        `<option value="${escapeHtml(m.name)}"${m.default ? " selected" : ""}>${escapeHtml(m.name)}${m.default ? " (default)" : ""}</option>`,
+        `<option value="${escapeHtml(m.name)}"${m.default ? " selected" : ""}>${escapeHtml(m.default ? t("methods.default", { name: m.name }) : m.name)}</option>`,
     )
     .join("");
 }
@@ -28,11 +29,11 @@ export function detectionText(detection: ComparisonDetection | null | undefined)
   if (detection.lod_m != null) {
     const spread =
       detection.lod_p10_m != null && detection.lod_p90_m != null
-        ? `${formatMetres(detection.lod_p10_m).replace(/ m$/, "")}–${formatMetres(detection.lod_p90_m)}`
+        ? `${formatNumber(detection.lod_p10_m)}–${formatMetres(detection.lod_p90_m)}`
         : null;
     const inside = [spread, detection.error_model].filter(Boolean).join(", ");
-    parts.push(`LoD ${formatMetres(detection.lod_m)}${inside ? ` (${inside})` : ""}`);
+    parts.push(inside ? t("methods.lodWithin", { lod: formatMetres(detection.lod_m), inside }) : t("methods.lod", { lod: formatMetres(detection.lod_m) }));
   }
-  if (detection.model) parts.push(`model ${detection.model}`);
+  if (detection.model) parts.push(t("methods.model", { model: detection.model }));
   return parts.join(" · ");
 }

@@ -1,6 +1,8 @@
 // Server-Sent Events over fetch, so that the Authorization header goes with the request
 // (EventSource cannot send one, and a token in the URL ends up in access logs).
 
+import { t } from "./i18n";
+
 export interface SseEvent {
   event: string;
   data: string;
@@ -97,6 +99,6 @@ export async function streamEvents(url: string, options: StreamOptions): Promise
 
 export class HttpStatusError extends Error {
   constructor(readonly status: number) {
-    super(`the server answered ${status}`);
+    super(t("error.serverAnswered", { status }));
   }
 }

@@ -9,6 +9,7 @@ import { sha256 } from "@noble/hashes/sha2";
 import { bytesToHex } from "@noble/hashes/utils";
 import * as tus from "tus-js-client";
 import { authHeaders, errorMessage } from "./api";
+import { t } from "./i18n";
 
 const HASH_SLICE = 4 * 1024 * 1024;
 export const RETRY_DELAYS_MS = [0, 1000, 3000, 5000, 10000, 20000];
@@ -62,7 +63,7 @@ export function reasonOf(error: Error): string {
     }
     return errorMessage(body, status);
   }
-  return navigator.onLine === false ? "the connection is down" : error.message.split(", originalRequest")[0];
+  return navigator.onLine === false ? t("upload.connectionDown") : error.message.split(", originalRequest")[0];
 }
 
 const TUS_HEADERS = { "Tus-Resumable": "1.0.0" };
@@ -111,9 +112,10 @@ export async function createUpload(
       return url;
     }
     if (response && response.status < 500) {
-      throw new Error(`${file.name} was not accepted: ${errorMessage(await response.json().catch(() => null), response.status)}.`);
+      const reason = errorMessage(await response.json().catch(() => null), response.status);
+      throw new Error(t("upload.notAccepted", { file: file.name, reason }));
     }
-    if (attempt >= RETRY_DELAYS_MS.length - 1) throw new Error(`${file.name}: the server cannot be reached.`);
+    if (attempt >= RETRY_DELAYS_MS.length - 1) throw new Error(t("upload.unreachable", { file: file.name }));
     await new Promise((r) => setTimeout(r, RETRY_DELAYS_MS[attempt + 1]));
   }
 }
@@ -166,7 +168,7 @@ export async function startUpload(
     onShouldRetry: (error, attempt) => {
       const status = (error as tus.DetailedError).originalResponse?.getStatus() ?? 0;
       const retry = status === 0 || status >= 500 || status === 409 || status === 423;
-      if (retry) callbacks.onRetry?.(`Connection lost (${reasonOf(error)}); trying again (attempt ${attempt + 1})…`);
+      if (retry) callbacks.onRetry?.(t("upload.retrying", { reason: reasonOf(error), n: attempt + 1 }));
       return retry;
     },
     onSuccess: () => callbacks.onSuccess(upload.url ?? ""),

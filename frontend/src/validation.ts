@@ -2,6 +2,7 @@
 // The server checks again, and fully, once they have arrived.
 
 import { formatBytes } from "./format";
+import { t } from "./i18n";
 
 export interface FileLike {
   name: string;
@@ -21,29 +22,28 @@ const hasSuffix = (name: string, suffixes: readonly string[]) =>
   suffixes.some((s) => name.toLowerCase().endsWith(s));
 
 function sizeProblem(file: FileLike, maxBytes: number): string | null {
-  if (file.size === 0) return `${file.name} is empty.`;
-  if (file.size > maxBytes)
-    return `${file.name} is ${formatBytes(file.size)}, more than the ${formatBytes(maxBytes)} this server accepts.`;
+  if (file.size === 0) return t("check.empty", { file: file.name });
+  if (file.size > maxBytes) return t("check.tooLarge", { file: file.name, size: formatBytes(file.size), max: formatBytes(maxBytes) });
   return null;
 }
 
 /** Problems with a DSM file; `head` is its first 4 bytes. */
 export function checkDsmFile(file: FileLike, head: Uint8Array, maxBytes: number): string[] {
   const problems: string[] = [];
-  if (!hasSuffix(file.name, SUFFIXES.dsm)) problems.push(`${file.name} is not a GeoTIFF: a DSM must be a .tif or .tiff file.`);
+  if (!hasSuffix(file.name, SUFFIXES.dsm)) problems.push(t("check.notGeoTiff", { file: file.name }));
   const size = sizeProblem(file, maxBytes);
   if (size) problems.push(size);
   else if (!TIFF_MAGIC.includes(toHex(head.slice(0, 4))))
-    problems.push(`${file.name} is not a TIFF file inside, whatever its name says.`);
+    problems.push(t("check.notTiffInside", { file: file.name }));
   return problems;
 }
 
 export function checkVideoSurvey(video: FileLike | null, log: FileLike | null, maxBytes: number): string[] {
   const problems: string[] = [];
-  if (!video) problems.push("Choose the video (.mp4 or .mov).");
-  else if (!hasSuffix(video.name, SUFFIXES.video)) problems.push(`${video.name} is not a video slidewatch reads: use .mp4 or .mov.`);
-  if (!log) problems.push("Choose the flight log (.srt from DJI, or a .csv log).");
-  else if (!hasSuffix(log.name, SUFFIXES.log)) problems.push(`${log.name} is not a flight log: use the .srt or .csv of the flight.`);
+  if (!video) problems.push(t("check.chooseVideo"));
+  else if (!hasSuffix(video.name, SUFFIXES.video)) problems.push(t("check.notVideo", { file: video.name }));
+  if (!log) problems.push(t("check.chooseLog"));
+  else if (!hasSuffix(log.name, SUFFIXES.log)) problems.push(t("check.notLog", { file: log.name }));
   for (const file of [video, log]) {
     const size = file && sizeProblem(file, maxBytes);
     if (size) problems.push(size);
@@ -53,20 +53,20 @@ export function checkVideoSurvey(video: FileLike | null, log: FileLike | null, m
 
 export function checkImageSet(images: FileLike[], maxBytes: number): string[] {
   const problems: string[] = [];
-  if (images.length < MIN_IMAGES) problems.push(`Choose at least ${MIN_IMAGES} geotagged photos (${images.length} chosen).`);
+  if (images.length < MIN_IMAGES) problems.push(t("check.tooFewPhotos", { min: MIN_IMAGES, count: images.length }));
   for (const image of images) {
-    if (!hasSuffix(image.name, SUFFIXES.image)) problems.push(`${image.name} is not a JPEG photo.`);
+    if (!hasSuffix(image.name, SUFFIXES.image)) problems.push(t("check.notJpeg", { file: image.name }));
     const size = sizeProblem(image, maxBytes);
     if (size) problems.push(size);
   }
   const names = images.map((i) => i.name);
   const twice = names.filter((n, i) => names.indexOf(n) !== i);
-  if (twice.length) problems.push(`Two photos have the same name: ${[...new Set(twice)].join(", ")}.`);
+  if (twice.length) problems.push(t("check.sameName", { names: [...new Set(twice)].join(", ") }));
   return problems;
 }
 
 export function checkCapturedAt(wall: string): string | null {
-  if (!wall) return "Say when the survey was flown.";
+  if (!wall) return t("check.whenFlown");
   return null;
 }
 

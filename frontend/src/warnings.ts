@@ -3,6 +3,7 @@
 // and a survey's quality verdict (`quality`) when it missed its bounds.
 
 import { escapeHtml } from "./format";
+import { t } from "./i18n";
 import type { SurveyQuality } from "./types";
 
 /** A warning as shown under its file, naming the file: the flight-log readers begin with
@@ -15,7 +16,7 @@ export function fileWarningText(fileName: string, warning: string): string {
 
 /** "1 warning", "3 warnings". */
 export function warningCount(count: number): string {
-  return `${count} warning${count === 1 ? "" : "s"}`;
+  return t("count.warnings", { count });
 }
 
 /** A notice under each file that was read with warnings; "" when none was. */
@@ -24,7 +25,7 @@ export function fileWarningsHtml(files: ReadonlyArray<{ name: string; warnings: 
     .filter((f) => f.warnings.length)
     .map(
       (f) => `<div class="notice file-warnings" role="note" data-file="${escapeHtml(f.name)}">
-        <p><strong>${escapeHtml(f.name)}</strong> was read with ${warningCount(f.warnings.length)}:</p>
+        <p>${t("warnings.fileReadWith", { file: `<strong>${escapeHtml(f.name)}</strong>`, warnings: warningCount(f.warnings.length) })}</p>
         <ul>${f.warnings.map((w) => `<li>${escapeHtml(fileWarningText(f.name, w))}</li>`).join("")}</ul></div>`,
     )
     .join("");
@@ -35,7 +36,7 @@ export function fileWarningsHtml(files: ReadonlyArray<{ name: string; warnings: 
 export function surveyWarningsHtml(warnings: readonly string[]): string {
   if (!warnings.length) return "";
   return `<details class="notice survey-warnings">
-      <summary>Read with ${warningCount(warnings.length)}: what was skipped or assumed</summary>
+      <summary>${t("warnings.surveyReadWith", { warnings: warningCount(warnings.length) })}</summary>
       <ul>${warnings.map((w) => `<li>${escapeHtml(w)}</li>`).join("")}</ul></details>`;
 }
 
@@ -44,8 +45,8 @@ export function surveyWarningsHtml(warnings: readonly string[]): string {
 export function qualitySummary(quality: SurveyQuality | null | undefined): string | null {
   const failed = quality?.checks.filter((c) => !c.passed) ?? [];
   if (!quality || quality.passed || !failed.length) return null;
-  const more = failed.length > 1 ? ` (and ${failed.length - 1} more)` : "";
-  return `Missed its quality bounds: ${failed[0].message}${more}`;
+  const more = failed.length > 1 ? t("warnings.andMore", { count: failed.length - 1 }) : "";
+  return t("warnings.missedBounds", { message: failed[0].message, more });
 }
 
 /** A survey's quality verdict in its row: nothing while it passed, else a mark with the
@@ -56,7 +57,7 @@ export function surveyQualityHtml(quality: SurveyQuality | null | undefined): st
   const checks = quality.checks
     .map(
       (c) => `<li class="${c.passed ? "check-passed" : "check-failed"}" data-check="${escapeHtml(c.name)}">
-        <strong>${c.passed ? "Met" : "Missed"}:</strong> ${escapeHtml(c.message)}</li>`,
+        <strong>${c.passed ? t("warnings.met") : t("warnings.missed")}</strong> ${escapeHtml(c.message)}</li>`,
     )
     .join("");
   return `<details class="notice survey-quality" role="note">
@@ -68,6 +69,6 @@ export function surveyQualityHtml(quality: SurveyQuality | null | undefined): st
 export function comparisonWarningsHtml(warnings: readonly string[] | undefined): string {
   if (!warnings?.length) return "";
   return `<details class="notice comparison-warnings" role="note">
-      <summary>Its surveys missed ${warnings.length === 1 ? "a quality bound" : `${warnings.length} quality bounds`}: the changes are less sure</summary>
+      <summary>${t("warnings.comparisonMissed", { count: warnings.length })}</summary>
       <ul>${warnings.map((w) => `<li>${escapeHtml(w)}</li>`).join("")}</ul></details>`;
 }

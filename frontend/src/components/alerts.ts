@@ -3,7 +3,8 @@
 
 import { api, getJson, postJson, putJson } from "../api";
 import { escapeHtml, formatDateTime } from "../format";
-import { failure, plural } from "./tools";
+import { type MessageKey, t } from "../i18n";
+import { failure } from "./tools";
 
 interface AlertSettings {
   min_area_m2: number;
@@ -39,10 +40,14 @@ interface Delivery {
 const POLL_MS = 1500;
 
 export function deliveryTarget(d: Delivery, webhooks: Webhook[]): string {
-  if (d.channel === "email") return `e-mail to ${(d.recipients ?? []).join(", ")}`;
+  if (d.channel === "email") return t("alerts.toEmail", { recipients: (d.recipients ?? []).join(", ") });
   const hook = webhooks.find((w) => w.id === d.webhook_id);
-  return hook ? `webhook ${hook.url}` : `webhook ${d.webhook_id ?? "(deleted)"}`;
+  return t("alerts.toWebhook", { target: hook ? hook.url : (d.webhook_id ?? t("alerts.deleted")) });
 }
+
+const DELIVERY_STATES = new Set(["pending", "retrying", "delivered", "failed"]);
+/** A delivery's state in words; one the page does not know as the API says it. */
+const deliveryState = (status: string) => (DELIVERY_STATES.has(status) ? t(`state.${status}` as MessageKey) : status);
 
 export class AlertsPanel {
   private webhooks: Webhook[] = [];
@@ -54,46 +59,46 @@ export class AlertsPanel {
     private readonly timeZone: string,
   ) {
     box.innerHTML = `<form id="alert-form">
-        <label for="alert-area">Alert for landslides of at least (m²)</label><input id="alert-area" type="number" min="0" step="any">
-        <label for="alert-volume">moving at least (m³)</label><input id="alert-volume" type="number" min="0" step="any">
-        <label for="alert-score">with a score of at least (0–1)</label><input id="alert-score" type="number" min="0" max="1" step="0.01">
-        <label class="check"><input type="checkbox" id="alert-jobs"> Alert when a job fails</label>
-        <label for="alert-emails">E-mail recipients (comma separated)</label><input id="alert-emails" autocomplete="off">
+        <label for="alert-area">${t("alerts.minArea")}</label><input id="alert-area" type="number" min="0" step="any">
+        <label for="alert-volume">${t("alerts.minVolume")}</label><input id="alert-volume" type="number" min="0" step="any">
+        <label for="alert-score">${t("alerts.minScore")}</label><input id="alert-score" type="number" min="0" max="1" step="0.01">
+        <label class="check"><input type="checkbox" id="alert-jobs"> ${t("alerts.jobFailures")}</label>
+        <label for="alert-emails">${t("alerts.recipients")}</label><input id="alert-emails" autocomplete="off">
         <p class="muted" id="alert-email-reason"></p>
-        <p class="row-actions"><button type="submit">Save alert settings</button>
-          <button type="button" id="alert-test-email">Send a test e-mail</button></p>
+        <p class="row-actions"><button type="submit">${t("alerts.save")}</button>
+          <button type="button" id="alert-test-email">${t("alerts.testEmail")}</button></p>
         <p class="muted" role="status" id="alert-status"></p>
         <p class="error" role="alert" id="alert-error"></p>
       </form>
-      <h4>Webhooks</h4>
+      <h4>${t("alerts.webhooks")}</h4>
       <ul class="plain" id="webhook-list"></ul>
       <form id="webhook-form">
-        <label for="webhook-url">Add a webhook (https URL that receives POSTed JSON)</label>
+        <label for="webhook-url">${t("alerts.addWebhookLabel")}</label>
         <span class="inline"><input id="webhook-url" type="url" required maxlength="2048" placeholder="https://">
-        <button type="submit">Add webhook</button></span>
+        <button type="submit">${t("alerts.addWebhook")}</button></span>
         <p class="notice" id="webhook-secret" hidden></p>
       </form>
-      <h4>Delivery log</h4>
-      <table><thead><tr><th>When</th><th>Event</th><th>To</th><th>State</th></tr></thead>
+      <h4>${t("alerts.log")}</h4>
+      <table><thead><tr><th>${t("alerts.colWhen")}</th><th>${t("alerts.colEvent")}</th><th>${t("alerts.colTo")}</th><th>${t("alerts.colState")}</th></tr></thead>
         <tbody id="delivery-rows"></tbody></table>`;
     (box.querySelector("#alert-form") as HTMLFormElement).addEventListener("submit", (event) => {
       event.preventDefault();
-      void this.act(() => this.saveSettings(), "Alert settings saved.");
+      void this.act(() => this.saveSettings(), t("alerts.saved"));
     });
     box.querySelector("#alert-test-email")?.addEventListener("click", () =>
-      void this.act(() => postJson(`sites/${siteId}/alerts/test-email`, {}), "Test e-mail queued: see the delivery log."),
+      void this.act(() => postJson(`sites/${siteId}/alerts/test-email`, {}), t("alerts.testEmailQueued")),
     );
     (box.querySelector("#webhook-form") as HTMLFormElement).addEventListener("submit", (event) => {
       event.preventDefault();
-      void this.act(() => this.addWebhook(), "Webhook added.");
+      void this.act(() => this.addWebhook(), t("alerts.webhookAdded"));
     });
     box.querySelector("#webhook-list")?.addEventListener("click", (event) => {
       const target = event.target as HTMLElement;
       const test = target.closest<HTMLElement>("[data-test-webhook]")?.dataset.testWebhook;
       const remove = target.closest<HTMLElement>("[data-delete-webhook]")?.dataset.deleteWebhook;
-      if (test) void this.act(() => postJson(`sites/${siteId}/webhooks/${test}/test`, {}), "Test delivery queued: see the delivery log.");
-      if (remove && window.confirm("Delete this webhook and its delivery log?"))
-        void this.act(() => api(`sites/${siteId}/webhooks/${remove}`, { method: "DELETE" }), "Webhook deleted.");
+      if (test) void this.act(() => postJson(`sites/${siteId}/webhooks/${test}/test`, {}), t("alerts.testQueued"));
+      if (remove && window.confirm(t("alerts.confirmDeleteWebhook")))
+        void this.act(() => api(`sites/${siteId}/webhooks/${remove}`, { method: "DELETE" }), t("alerts.webhookDeleted"));
     });
   }
 
@@ -133,7 +138,7 @@ export class AlertsPanel {
     this.field("webhook-url").value = "";
     const secret = this.field("webhook-secret");
     secret.hidden = false;
-    secret.innerHTML = `Its signing secret, shown only now (see docs/alerts.md): <code>${escapeHtml(made.secret)}</code>`;
+    secret.innerHTML = t("alerts.secret", { secret: `<code>${escapeHtml(made.secret)}</code>` });
   }
 
   async load(): Promise<void> {
@@ -149,12 +154,12 @@ export class AlertsPanel {
         ? webhooks
             .map(
               (w) => `<li data-webhook="${w.id}"><code class="url">${escapeHtml(w.url)}</code>
-                <span class="muted">${w.active ? "" : "inactive · "}${escapeHtml(w.events.join(", "))}</span>
-                <span class="row-actions"><button type="button" data-test-webhook="${w.id}">Send a test</button>
-                <button type="button" data-delete-webhook="${w.id}">Delete</button></span></li>`,
+                <span class="muted">${w.active ? "" : `${t("alerts.inactive")} · `}${escapeHtml(w.events.join(", "))}</span>
+                <span class="row-actions"><button type="button" data-test-webhook="${w.id}">${t("alerts.sendTest")}</button>
+                <button type="button" data-delete-webhook="${w.id}">${t("alerts.delete")}</button></span></li>`,
             )
             .join("")
-        : `<li class="muted">No webhook.</li>`;
+        : `<li class="muted">${t("alerts.noWebhook")}</li>`;
       await this.loadDeliveries();
     } catch (e) {
       this.field("alert-error").textContent = failure(e);
@@ -171,7 +176,7 @@ export class AlertsPanel {
     // Without SMTP the server refuses recipients: say so before anyone types one.
     emails.disabled = !s.email_available && !s.email_recipients.length;
     (this.box.querySelector("#alert-test-email") as HTMLButtonElement).disabled = !s.email_available;
-    const reason = s.email_unavailable_reason ?? "e-mail cannot be sent by this server";
+    const reason = s.email_unavailable_reason ?? t("alerts.emailUnavailable");
     this.field("alert-email-reason").textContent = s.email_available ? "" : `${reason[0].toUpperCase()}${reason.slice(1)}.`;
   }
 
@@ -182,12 +187,12 @@ export class AlertsPanel {
           .map(
             (d) => `<tr data-delivery="${d.id}" data-status="${d.status}"><td>${escapeHtml(formatDateTime(d.created_at, this.timeZone))}</td>
               <td>${escapeHtml(d.event)}</td><td>${escapeHtml(deliveryTarget(d, this.webhooks))}</td>
-              <td>${escapeHtml(d.status)}, ${plural(d.attempts, "attempt", "attempts")}${
+              <td>${escapeHtml(t("alerts.stateLine", { state: deliveryState(d.status), attempts: t("count.attempts", { count: d.attempts }) }))}${
                 d.last_error ? `: ${escapeHtml(d.last_error)}` : ""
               }</td></tr>`,
           )
           .join("")
-      : `<tr><td colspan="4" class="muted">Nothing sent yet.</td></tr>`;
+      : `<tr><td colspan="4" class="muted">${t("alerts.nothingSent")}</td></tr>`;
     // Follow a delivery until it is delivered or given up.
     if (deliveries.some((d) => d.status === "pending" || d.status === "retrying")) {
       this.timer = window.setTimeout(() => void this.loadDeliveries().catch(() => {}), POLL_MS);

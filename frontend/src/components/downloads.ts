@@ -5,34 +5,35 @@
 import { getJson } from "../api";
 import { escapeHtml, formatBytes, formatDate } from "../format";
 import type { Comparison, Product, Survey } from "../types";
+import { type MessageKey, t } from "../i18n";
 import { download, failure } from "./tools";
 
 // The pipeline's product kinds (worker/pipeline: reconstruction, comparison, methods).
-const PRODUCT_NAMES: Record<string, string> = {
-  dsm: "DSM (Cloud-Optimized GeoTIFF)",
-  orthophoto: "Orthophoto (Cloud-Optimized GeoTIFF)",
-  points: "Point cloud (PLY)",
-  trajectory: "Flight trajectory (GeoJSON)",
-  report: "Reconstruction report (JSON)",
-  dh: "Δh, elevation change (Cloud-Optimized GeoTIFF)",
-  post_coregistered: "Post DSM co-registered onto pre (GeoTIFF)",
-  significance: "Significant change mask (GeoTIFF)",
-  lod: "Level of detection, LoD95 (GeoTIFF)",
-  probability: "Landslide probability (Cloud-Optimized GeoTIFF)",
-  cells: "Probability cells (GeoJSON)",
-  detections: "Detections as stored by the pipeline (GeoJSON)",
-};
+const PRODUCT_KINDS = new Set([
+  "dsm",
+  "orthophoto",
+  "points",
+  "trajectory",
+  "report",
+  "dh",
+  "post_coregistered",
+  "significance",
+  "lod",
+  "probability",
+  "cells",
+  "detections",
+]);
 
 export function productName(kind: string): string {
-  return PRODUCT_NAMES[kind] ?? kind.replace(/_/g, " ");
+  return PRODUCT_KINDS.has(kind) ? t(`product.${kind}` as MessageKey) : kind.replace(/_/g, " ");
 }
 
 /** The detection formats the API writes (…/detections/{format}); GeoJSON is …/detections. */
-export const DETECTION_FORMATS: Array<[string, string]> = [
-  ["geojson", "GeoJSON"],
-  ["gpkg", "GeoPackage"],
-  ["kml", "KML"],
-  ["shp", "Shapefile (zip)"],
+export const DETECTION_FORMATS: Array<[string, () => string]> = [
+  ["geojson", () => "GeoJSON"],
+  ["gpkg", () => "GeoPackage"],
+  ["kml", () => "KML"],
+  ["shp", () => t("downloads.shapefile")],
 ];
 
 export function detectionsUrl(siteId: number, comparisonId: number, format: string): string {
@@ -43,11 +44,11 @@ export function detectionsUrl(siteId: number, comparisonId: number, format: stri
 function productItems(products: Product[]): string {
   // The comparison's detections file is offered below in every format, from the API.
   const shown = products.filter((p) => p.kind !== "detections");
-  if (!shown.length) return `<li class="muted">No product yet.</li>`;
+  if (!shown.length) return `<li class="muted">${t("downloads.noProduct")}</li>`;
   return shown
     .map(
       (p) => `<li><button type="button" class="link-button" data-url="${escapeHtml(p.download_url)}"
-        data-name="${escapeHtml(p.kind)}-${p.id}">Download ${escapeHtml(productName(p.kind))}</button>
+        data-name="${escapeHtml(p.kind)}-${p.id}">${t("downloads.download", { product: escapeHtml(productName(p.kind)) })}</button>
         <span class="muted">${formatBytes(p.file.size_bytes)}</span></li>`,
     )
     .join("");
@@ -78,7 +79,7 @@ export class DownloadsPanel {
     const surveyProducts = await Promise.all(
       ready.map((s) => getJson<Product[]>(`sites/${this.siteId}/surveys/${s.id}/products`).catch(() => [])),
     );
-    let comparisonHtml = `<p class="muted">Show a finished comparison to download its products.</p>`;
+    let comparisonHtml = `<p class="muted">${t("downloads.showComparison")}</p>`;
     if (comparison && comparison.status === "succeeded") {
       const products = await getJson<Product[]>(`sites/${this.siteId}/comparisons/${comparison.id}/products`).catch(
         () => [] as Product[],
@@ -86,9 +87,9 @@ export class DownloadsPanel {
       const formats = DETECTION_FORMATS.map(
         ([format, name]) => `<li><button type="button" class="link-button" data-format="${format}"
           data-url="${detectionsUrl(this.siteId, comparison.id, format)}"
-          data-name="comparison-${comparison.id}-detections.${format === "shp" ? "shp.zip" : format}">Detections as ${name}</button></li>`,
+          data-name="comparison-${comparison.id}-detections.${format === "shp" ? "shp.zip" : format}">${t("downloads.detectionsAs", { format: name() })}</button></li>`,
       ).join("");
-      comparisonHtml = `<h4>Comparison ${comparison.id}</h4>
+      comparisonHtml = `<h4>${t("downloads.comparison", { id: comparison.id })}</h4>
         <ul class="plain" data-role="comparison-products">${productItems(products)}${formats}</ul>`;
     }
     const surveysHtml = ready.length
@@ -98,9 +99,9 @@ export class DownloadsPanel {
               <ul class="plain" data-survey-products="${s.id}">${productItems(surveyProducts[i])}</ul>`,
           )
           .join("")
-      : `<p class="muted">No ready survey yet.</p>`;
+      : `<p class="muted">${t("downloads.noSurvey")}</p>`;
     this.box.innerHTML = `${comparisonHtml}${surveysHtml}
-      <p class="muted">The report's PDF and HTML are under Reports.</p><p class="error" role="alert"></p>`;
+      <p class="muted">${t("downloads.reportsElsewhere")}</p><p class="error" role="alert"></p>`;
   }
 
   get shown(): Comparison | null {

@@ -3,6 +3,7 @@
 
 import { getJson } from "../api";
 import { escapeHtml } from "../format";
+import { t } from "../i18n";
 import { copyText, failure } from "./tools";
 
 interface GisLinks {
@@ -17,7 +18,7 @@ interface GisLinks {
 function row(id: string, label: string, url: string): string {
   return `<label for="${id}">${escapeHtml(label)}</label>
     <span class="inline"><input id="${id}" readonly value="${escapeHtml(url)}">
-    <button type="button" class="link-button" data-copy="${id}" aria-label="Copy ${escapeHtml(label)}">Copy</button></span>`;
+    <button type="button" class="link-button" data-copy="${id}" aria-label="${escapeHtml(t("gis.copyNamed", { label }))}">${t("gis.copy")}</button></span>`;
 }
 
 export class GisPanel {
@@ -31,8 +32,8 @@ export class GisPanel {
       const field = box.querySelector(`#${button.dataset.copy}`) as HTMLInputElement;
       void copyText(field.value, field).then((copied) => {
         (box.querySelector("#gis-status") as HTMLElement).textContent = copied
-          ? `Copied: ${field.value}`
-          : "Copying is not allowed here: select the address and copy it by hand.";
+          ? t("gis.copied", { url: field.value })
+          : t("gis.copyRefused");
       });
     });
   }
@@ -41,13 +42,13 @@ export class GisPanel {
     try {
       const links = await getJson<GisLinks>(`sites/${this.siteId}/gis`);
       const xyz = links.xyz.length
-        ? links.xyz.map((layer, i) => row(`gis-xyz-${i}`, `XYZ tiles: ${layer.title}`, layer.template)).join("")
-        : `<p class="muted">No map layer yet: upload a survey.</p>`;
+        ? links.xyz.map((layer, i) => row(`gis-xyz-${i}`, t("gis.xyz", { title: layer.title }), layer.template)).join("")
+        : `<p class="muted">${t("gis.noLayer")}</p>`;
       this.box.innerHTML = `<p class="muted">${escapeHtml(links.authentication)}</p>
-        ${row("gis-ogc", "OGC API – Features (QGIS: Add WFS / OGC API layer)", links.ogc_api)}
-        ${row("gis-ogc-detections", "This site's detections (OGC API items)", links.ogc_detections)}
-        ${row("gis-wmts", "WMTS capabilities (every layer of the site)", links.wmts)}
-        ${row("gis-stac", "STAC collection", links.stac)}
+        ${row("gis-ogc", t("gis.ogc"), links.ogc_api)}
+        ${row("gis-ogc-detections", t("gis.ogcDetections"), links.ogc_detections)}
+        ${row("gis-wmts", t("gis.wmts"), links.wmts)}
+        ${row("gis-stac", t("gis.stac"), links.stac)}
         ${xyz}
         <p class="muted" role="status" id="gis-status"></p>`;
     } catch (e) {

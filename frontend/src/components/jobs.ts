@@ -5,16 +5,21 @@
 import { ApiError, authHeaders, postJson } from "../api";
 import { escapeHtml, formatDateTime, formatPercent } from "../format";
 import { streamEvents } from "../sse";
+import { type MessageKey, t } from "../i18n";
 import type { Job } from "../types";
 
 const FINAL = new Set(["succeeded", "failed"]);
 
 // One name for one thing: stage names and their help are the pipeline's own (from the API).
 export function jobTitle(job: Job): string {
-  if (job.kind === "comparison") return `Comparison ${job.comparison_id ?? ""}`.trim();
-  if (job.kind === "reconstruction") return `Reconstruction of survey ${job.survey_id ?? ""}`.trim();
-  return `${job.kind} job`;
+  if (job.kind === "comparison") return t("jobs.comparison", { id: job.comparison_id ?? "" }).trim();
+  if (job.kind === "reconstruction") return t("jobs.reconstruction", { id: job.survey_id ?? "" }).trim();
+  return t("jobs.other", { kind: job.kind });
 }
+
+const STATES = new Set(["queued", "pending", "running", "succeeded", "failed"]);
+/** A job's or stage's state in words; one the page does not know as the API says it. */
+const stateWord = (state: string) => (STATES.has(state) ? t(`state.${state}` as MessageKey) : state);
 
 const RECENT = 8;
 
@@ -24,7 +29,7 @@ function stageLogsHtml(job: Job, open: boolean): string {
     .map((s) => `<h4>${escapeHtml(s.stage)}</h4><pre class="stage-log">${escapeHtml(s.log.join("\n"))}</pre>`)
     .join("");
   if (!stages) return "";
-  return `<details class="job-log" data-log="${job.id}"${open ? " open" : ""}><summary>Stage logs of job ${job.id}</summary>${stages}</details>`;
+  return `<details class="job-log" data-log="${job.id}"${open ? " open" : ""}><summary>${t("jobs.logs", { id: job.id })}</summary>${stages}</details>`;
 }
 
 export class JobsPanel {
@@ -94,7 +99,7 @@ export class JobsPanel {
     } catch (e) {
       button.disabled = false;
       const error = this.box.querySelector(`[data-job="${jobId}"] .retry-error`);
-      if (error) error.textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+      if (error) error.textContent = e instanceof ApiError ? e.message : t("error.unreachable");
     }
   }
 
@@ -102,7 +107,7 @@ export class JobsPanel {
     const all = [...this.jobs.values()].sort((a, b) => b.id - a.id);
     const jobs = this.showAll ? all : all.slice(0, RECENT);
     if (!jobs.length) {
-      this.box.innerHTML = `<p class="muted">Nothing is processing.</p>`;
+      this.box.innerHTML = `<p class="muted">${t("jobs.none")}</p>`;
       return;
     }
     this.box.innerHTML = jobs
@@ -111,24 +116,24 @@ export class JobsPanel {
           .map(
             (s) => `<li class="stage stage-${s.state}">
               <label><span class="stage-name">${escapeHtml(s.stage)}</span> <span class="muted">${escapeHtml(s.help ?? "")}</span>
-              <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(s.stage)} progress">${formatPercent(s.progress)}</progress></label>
-              <span class="stage-state">${s.state}${s.attempts > 1 ? `, attempt ${s.attempts}` : ""}</span>
+              <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(t("jobs.stageProgress", { stage: s.stage }))}">${formatPercent(s.progress)}</progress></label>
+              <span class="stage-state">${stateWord(s.state)}${s.attempts > 1 ? t("jobs.attempt", { n: s.attempts }) : ""}</span>
             </li>`,
           )
           .join("");
         const failed = job.state === "failed";
         return `<article class="job job-${job.state}" data-job="${job.id}" aria-live="polite">
-          <h3>${escapeHtml(jobTitle(job))} <span class="job-state">${job.state}</span> <span class="muted">${formatPercent(job.progress)}</span></h3>
-          <p class="muted">queued ${formatDateTime(job.created_at, this.timeZone)}${job.finished_at ? `, finished ${formatDateTime(job.finished_at, this.timeZone)}` : ""}</p>
+          <h3>${escapeHtml(jobTitle(job))} <span class="job-state">${stateWord(job.state)}</span> <span class="muted">${formatPercent(job.progress)}</span></h3>
+          <p class="muted">${t("jobs.queuedAt", { when: formatDateTime(job.created_at, this.timeZone) })}${job.finished_at ? t("jobs.finishedAt", { when: formatDateTime(job.finished_at, this.timeZone) }) : ""}</p>
           <ol class="stages">${stages}</ol>
           ${stageLogsHtml(job, this.openLogs.has(job.id))}
-          ${failed ? `<p class="error" role="alert">Failed: ${escapeHtml(job.error ?? "no reason given")}</p>
-            <button type="button" data-retry="${job.id}">Retry job ${job.id}</button><p class="error retry-error"></p>` : ""}
+          ${failed ? `<p class="error" role="alert">${t("jobs.failed", { reason: escapeHtml(job.error ?? t("common.noReason")) })}</p>
+            <button type="button" data-retry="${job.id}">${t("jobs.retry", { id: job.id })}</button><p class="error retry-error"></p>` : ""}
         </article>`;
       })
       .join("") +
       (all.length > RECENT
-        ? `<button type="button" data-all-jobs>${this.showAll ? `Show the latest ${RECENT} jobs` : `Show all ${all.length} jobs (history)`}</button>`
+        ? `<button type="button" data-all-jobs>${this.showAll ? t("jobs.showLatest", { count: RECENT }) : t("jobs.showAll", { count: all.length })}</button>`
         : "");
   }
 

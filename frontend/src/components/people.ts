@@ -4,6 +4,7 @@
 
 import { ApiError, api, getJson, postJson, putJson } from "../api";
 import { escapeHtml, formatDateTime } from "../format";
+import { type MessageKey, t } from "../i18n";
 import { failure } from "./tools";
 
 interface Organisation {
@@ -27,24 +28,26 @@ interface UserAccount {
 }
 
 const ROLES = ["viewer", "analyst", "manager", "admin"];
+/** A role's name as the page says it (the API's own word in English). */
+export const roleName = (role: string) => (ROLES.includes(role) ? t(`role.${role}` as MessageKey) : role);
 const roleOptions = (selected = "viewer") =>
-  ROLES.map((r) => `<option value="${r}"${r === selected ? " selected" : ""}>${r}</option>`).join("");
+  ROLES.map((r) => `<option value="${r}"${r === selected ? " selected" : ""}>${roleName(r)}</option>`).join("");
 
 function membersHtml(org: Organisation, members: Member[]): string {
   const rows = members
     .map(
-      (m) => `<tr><td>${escapeHtml(m.username)}</td><td>${escapeHtml(m.display_name)}</td><td>${escapeHtml(m.role)}</td>
+      (m) => `<tr><td>${escapeHtml(m.username)}</td><td>${escapeHtml(m.display_name)}</td><td>${escapeHtml(roleName(m.role))}</td>
         <td><button type="button" data-remove-member="${escapeHtml(m.username)}" data-org="${org.id}"
-          aria-label="Remove ${escapeHtml(m.username)} from ${escapeHtml(org.name)}">Remove</button></td></tr>`,
+          aria-label="${escapeHtml(t("people.removeNamed", { user: m.username, organisation: org.name }))}">${t("people.remove")}</button></td></tr>`,
     )
     .join("");
   return `<h3>${escapeHtml(org.name)}</h3>
     <table class="members"><tbody>${rows}</tbody></table>
     <form data-add-member="${org.id}">
-      <label for="member-name-${org.id}">Give a user a role in ${escapeHtml(org.name)}</label>
-      <input id="member-name-${org.id}" name="username" required maxlength="100" placeholder="user name">
-      <select name="role" aria-label="Role">${roleOptions()}</select>
-      <button type="submit">Add member</button>
+      <label for="member-name-${org.id}">${t("people.giveRole", { organisation: escapeHtml(org.name) })}</label>
+      <input id="member-name-${org.id}" name="username" required maxlength="100" placeholder="${escapeHtml(t("people.userNamePlaceholder"))}">
+      <select name="role" aria-label="${escapeHtml(t("people.role"))}">${roleOptions()}</select>
+      <button type="submit">${t("people.addMember")}</button>
     </form>`;
 }
 
@@ -52,18 +55,18 @@ function usersHtml(users: UserAccount[]): string {
   return `<table class="users"><tbody>${users
     .map(
       (u) => `<tr data-user="${u.id}"><td>${escapeHtml(u.username)}</td><td>${escapeHtml(u.display_name)}</td>
-        <td class="muted">${u.disabled_at ? "disabled" : `last sign-in ${escapeHtml(formatDateTime(u.last_login_at, "UTC"))}`}</td>
+        <td class="muted">${u.disabled_at ? t("people.disabled") : t("people.lastSignIn", { when: escapeHtml(formatDateTime(u.last_login_at, "UTC")) })}</td>
         <td><button type="button" data-user-action="${u.disabled_at ? "enable" : "disable"}" data-id="${u.id}">${
-          u.disabled_at ? "Enable" : "Disable"
+          u.disabled_at ? t("people.enable") : t("people.disable")
         }</button></td></tr>`,
     )
     .join("")}</tbody></table>
     <form id="new-user">
-      <label for="new-user-name">New user's name</label><input id="new-user-name" required maxlength="100">
-      <label for="new-user-display">Full name</label><input id="new-user-display" maxlength="200">
-      <label for="new-user-password">Password (at least 8 characters; they change it)</label>
+      <label for="new-user-name">${t("people.newUserName")}</label><input id="new-user-name" required maxlength="100">
+      <label for="new-user-display">${t("people.fullName")}</label><input id="new-user-display" maxlength="200">
+      <label for="new-user-password">${t("people.newUserPassword")}</label>
       <input id="new-user-password" type="password" autocomplete="new-password" required>
-      <button type="submit">Create user</button>
+      <button type="submit">${t("people.createUser")}</button>
     </form>`;
 }
 
@@ -93,7 +96,7 @@ export class PeoplePanel {
     box.addEventListener("click", (event) => {
       const target = event.target as HTMLElement;
       const member = target.closest<HTMLElement>("[data-remove-member]");
-      if (member && window.confirm(`Take away every role of ${member.dataset.removeMember} in this organisation?`))
+      if (member && window.confirm(t("people.confirmRemove", { user: member.dataset.removeMember ?? "" })))
         void this.act(() =>
           api(`organisations/${member.dataset.org}/members/${encodeURIComponent(member.dataset.removeMember ?? "")}`, {
             method: "DELETE",
@@ -124,9 +127,9 @@ export class PeoplePanel {
       throw e;
     });
     const parts = managed.map((o, i) => membersHtml(o, members[i]));
-    if (users) parts.push(`<h3>Users</h3>${usersHtml(users)}`);
+    if (users) parts.push(`<h3>${t("people.users")}</h3>${usersHtml(users)}`);
     this.box.innerHTML = parts.length
       ? `${parts.join("")}<p class="error" role="alert" id="people-error"></p>`
-      : `<p class="muted">You manage no organisation: ask a manager to give people roles.</p>`;
+      : `<p class="muted">${t("people.managesNone")}</p>`;
   }
 }

@@ -3,7 +3,8 @@
 
 import { getJson, postJson } from "../api";
 import { escapeHtml, formatDateTime } from "../format";
-import { download, failure, plural } from "./tools";
+import { t } from "../i18n";
+import { download, failure } from "./tools";
 
 export interface Report {
   id: number;
@@ -22,11 +23,22 @@ export interface Report {
 const POLL_MS = 1500;
 
 export function reportLine(r: Report, timeZone: string): string {
-  const how = r.trigger === "schedule" ? `scheduled (schedule ${r.schedule_id})` : "made on demand";
-  const found = r.summary?.detections != null ? `, ${plural(r.summary.detections, "detection", "detections")}` : "";
+  const how = r.trigger === "schedule" ? t("reports.scheduled", { schedule: String(r.schedule_id) }) : t("reports.onDemand");
   const state =
-    r.status === "succeeded" ? `ready${found}` : r.status === "failed" ? `failed: ${r.error ?? "no reason given"}` : `${r.status}…`;
-  return `Report ${r.id} of comparison ${r.comparison_id ?? "—"}, ${how}, ${formatDateTime(r.created_at, timeZone)}: ${state}`;
+    r.status === "succeeded"
+      ? r.summary?.detections != null
+        ? t("reports.readyWith", { found: t("count.detections", { count: r.summary.detections }) })
+        : t("reports.ready")
+      : r.status === "failed"
+        ? t("reports.failed", { reason: r.error ?? t("common.noReason") })
+        : t(r.status === "queued" ? "reports.queued" : "reports.running");
+  return t("reports.line", {
+    id: r.id,
+    comparison: r.comparison_id ?? "—",
+    how,
+    when: formatDateTime(r.created_at, timeZone),
+    state,
+  });
 }
 
 export class ReportsPanel {
@@ -39,7 +51,7 @@ export class ReportsPanel {
     private readonly timeZone: string,
   ) {
     box.innerHTML = `<p class="muted" id="report-for"></p>
-      <button type="button" id="make-report">Make a report now</button>
+      <button type="button" id="make-report">${t("reports.make")}</button>
       <p class="error" role="alert" id="report-error"></p>
       <ul class="plain" id="report-list" aria-live="polite"></ul>`;
     box.querySelector("#make-report")?.addEventListener("click", () => void this.make());
@@ -54,7 +66,7 @@ export class ReportsPanel {
   setComparison(id: number | null): void {
     this.comparisonId = id;
     (this.box.querySelector("#report-for") as HTMLElement).textContent =
-      id == null ? "A report of the site's latest finished comparison." : `A report of comparison ${id}, the one on the map.`;
+      id == null ? t("reports.forLatest") : t("reports.forShown", { id });
   }
 
   private fail(e: unknown): void {
@@ -90,7 +102,7 @@ export class ReportsPanel {
               ${r.html_url ? `<button type="button" class="link-button" data-url="${escapeHtml(r.html_url)}" data-name="slidewatch-report-${r.id}.html">HTML</button>` : ""}</li>`,
           )
           .join("")
-      : `<li class="muted">No report yet.</li>`;
+      : `<li class="muted">${t("reports.none")}</li>`;
     // Until every report is finished, ask again; the worker makes one in seconds.
     if (reports.some((r) => r.status === "queued" || r.status === "running")) {
       this.timer = window.setTimeout(() => void this.load(), POLL_MS);

@@ -4,6 +4,7 @@
 
 import { ApiError, api, getJson, postJson } from "../api";
 import { escapeHtml, formatDateTime } from "../format";
+import { currentLocale, t } from "../i18n";
 import { failure } from "./tools";
 
 interface Schedule {
@@ -30,7 +31,12 @@ export interface CronChoice {
   monthday: number;
 }
 
-const WEEKDAYS = ["Sunday", "Monday", "Tuesday", "Wednesday", "Thursday", "Friday", "Saturday"];
+/** The weekdays' names in the page's language, Sunday first as cron counts them
+ * (4 January 2026 was a Sunday). */
+export function weekdayNames(): string[] {
+  const format = new Intl.DateTimeFormat(currentLocale(), { weekday: "long", timeZone: "UTC" });
+  return Array.from({ length: 7 }, (_, i) => format.format(new Date(Date.UTC(2026, 0, 4 + i))));
+}
 
 /** The cron expression of a choice; null for "custom" (typed by hand). */
 export function cronOf(c: CronChoice): string | null {
@@ -62,34 +68,34 @@ export class SchedulesPanel {
     private readonly timeZone: string,
   ) {
     box.innerHTML = `<form id="schedule-form">
-        <label for="schedule-frequency">Make a report</label>
+        <label for="schedule-frequency">${t("schedules.make")}</label>
         <select id="schedule-frequency">${options(
           [
-            ["hourly", "every hour"],
-            ["daily", "every day"],
-            ["weekly", "every week"],
-            ["monthly", "every month"],
-            ["custom", "as a cron expression says"],
+            ["hourly", t("schedules.hourly")],
+            ["daily", t("schedules.daily")],
+            ["weekly", t("schedules.weekly")],
+            ["monthly", t("schedules.monthly")],
+            ["custom", t("schedules.custom")],
           ],
           "weekly",
         )}</select>
-        <span data-part="weekday"><label for="schedule-weekday">On</label><select id="schedule-weekday">${options(
-          WEEKDAYS.map((d, i) => [i, d] as [number, string]),
+        <span data-part="weekday"><label for="schedule-weekday">${t("schedules.on")}</label><select id="schedule-weekday">${options(
+          weekdayNames().map((d, i) => [i, d] as [number, string]),
           1,
         )}</select></span>
-        <span data-part="monthday"><label for="schedule-monthday">On day</label><select id="schedule-monthday">${options(range(28, 1), 1)}</select></span>
-        <span data-part="hour"><label for="schedule-hour">At hour</label><select id="schedule-hour">${options(range(24), 6)}</select></span>
-        <label for="schedule-minute">Minute</label><select id="schedule-minute">${options(
+        <span data-part="monthday"><label for="schedule-monthday">${t("schedules.onDay")}</label><select id="schedule-monthday">${options(range(28, 1), 1)}</select></span>
+        <span data-part="hour"><label for="schedule-hour">${t("schedules.atHour")}</label><select id="schedule-hour">${options(range(24), 6)}</select></span>
+        <label for="schedule-minute">${t("schedules.minute")}</label><select id="schedule-minute">${options(
           range(12).map(([m]) => [m * 5, String(m * 5).padStart(2, "0")] as [number, string]),
           0,
         )}</select>
-        <label for="schedule-cron">Cron expression (minute hour day month weekday), times in ${escapeHtml(timeZone)}</label>
+        <label for="schedule-cron">${t("schedules.cron", { zone: escapeHtml(timeZone) })}</label>
         <input id="schedule-cron" required maxlength="120" spellcheck="false" autocomplete="off">
-        <label for="schedule-name">Name (optional)</label><input id="schedule-name" maxlength="200">
-        <p class="muted">Next five runs:</p>
+        <label for="schedule-name">${t("schedules.name")}</label><input id="schedule-name" maxlength="200">
+        <p class="muted">${t("schedules.nextRuns")}</p>
         <ol class="next-runs" id="schedule-next" aria-live="polite"></ol>
         <p class="error" role="alert" id="schedule-error"></p>
-        <button type="submit">Save schedule</button>
+        <button type="submit">${t("schedules.save")}</button>
       </form>
       <ul class="plain" id="schedule-list"></ul>`;
     const form = box.querySelector("#schedule-form") as HTMLFormElement;
@@ -204,14 +210,14 @@ export class SchedulesPanel {
         ? schedules
             .map(
               (s) => `<li data-schedule="${s.id}"><code>${escapeHtml(s.cron)}</code> ${escapeHtml(s.name)}
-                <span class="muted">${s.enabled ? `next ${escapeHtml(formatDateTime(s.next_run_at, this.timeZone))}` : "paused"}${
-                  s.last_run_at ? `, last ${escapeHtml(formatDateTime(s.last_run_at, this.timeZone))}` : ""
-                }${s.timezone !== this.timeZone ? ` (cron in ${escapeHtml(s.timezone)})` : ""}</span>
-                <span class="row-actions"><button type="button" data-toggle-schedule="${s.id}" data-enabled="${s.enabled}">${s.enabled ? "Pause" : "Resume"}</button>
-                <button type="button" data-delete-schedule="${s.id}">Delete schedule ${s.id}</button></span></li>`,
+                <span class="muted">${s.enabled ? t("schedules.next", { when: escapeHtml(formatDateTime(s.next_run_at, this.timeZone)) }) : t("schedules.paused")}${
+                  s.last_run_at ? t("schedules.last", { when: escapeHtml(formatDateTime(s.last_run_at, this.timeZone)) }) : ""
+                }${s.timezone !== this.timeZone ? t("schedules.cronZone", { zone: escapeHtml(s.timezone) }) : ""}</span>
+                <span class="row-actions"><button type="button" data-toggle-schedule="${s.id}" data-enabled="${s.enabled}">${s.enabled ? t("schedules.pause") : t("schedules.resume")}</button>
+                <button type="button" data-delete-schedule="${s.id}">${t("schedules.delete", { id: s.id })}</button></span></li>`,
             )
             .join("")
-        : `<li class="muted">No schedule.</li>`;
+        : `<li class="muted">${t("schedules.none")}</li>`;
     } catch (e) {
       // Said rather than an empty list, e.g. a role too small to see schedules.
       list.innerHTML = `<li class="error">${escapeHtml(e instanceof ApiError ? e.message : failure(e))}</li>`;

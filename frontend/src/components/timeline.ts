@@ -1,6 +1,7 @@
 // The site's surveys on a time axis, in the site's time zone.
 
 import { escapeHtml, formatDate, formatDateTime, formatMetres, parseApiTime } from "../format";
+import { type MessageKey, t } from "../i18n";
 import type { Survey } from "../types";
 import { surveyQualityHtml, surveyWarningsHtml } from "../warnings";
 
@@ -12,16 +13,22 @@ export function timelinePositions(surveys: Survey[]): number[] {
   return times.map((t) => (max > min ? (t - min) / (max - min) : 0.5));
 }
 
-const STATUS_WORDS: Record<Survey["status"], string> = {
-  receiving: "receiving files",
-  uploaded: "uploaded",
-  processing: "processing",
-  ready: "ready",
-  failed: "failed",
+const STATUS_WORDS: Record<Survey["status"], MessageKey> = {
+  receiving: "survey.receiving",
+  uploaded: "survey.uploaded",
+  processing: "survey.processing",
+  ready: "survey.ready",
+  failed: "survey.failed",
+};
+
+const KIND_WORDS: Record<Survey["kind"], MessageKey> = {
+  dsm: "survey.kindDsm",
+  video: "survey.kindVideo",
+  images: "survey.kindImages",
 };
 
 export function renderTimeline(surveys: Survey[], timeZone: string): string {
-  if (!surveys.length) return `<p class="muted">No survey yet: upload one below.</p>`;
+  if (!surveys.length) return `<p class="muted">${t("survey.none")}</p>`;
   const positions = timelinePositions(surveys);
   const marks = surveys
     .map(
@@ -36,20 +43,20 @@ export function renderTimeline(surveys: Survey[], timeZone: string): string {
       (s) => `<li class="survey" data-survey-id="${s.id}">
         <span class="name">${escapeHtml(s.name)}</span>
         <span class="when">${formatDateTime(s.captured_at, timeZone)}</span>
-        <span class="what">${s.kind === "dsm" ? "DSM" : s.kind === "video" ? "video + log" : "photos"} ·
-          <span class="status">${STATUS_WORDS[s.status]}</span>${s.resolution_m ? ` · ${formatMetres(s.resolution_m)} pixels` : ""}</span>
+        <span class="what">${t(KIND_WORDS[s.kind])} ·
+          <span class="status">${t(STATUS_WORDS[s.status])}</span>${s.resolution_m ? ` · ${t("survey.pixels", { size: formatMetres(s.resolution_m) })}` : ""}</span>
         ${s.error ? `<span class="error">${escapeHtml(s.error)}</span>` : ""}
         <span class="row-actions">
-          <button type="button" data-rename-survey="${s.id}">Rename survey ${escapeHtml(s.name)}</button>
-          ${s.status === "failed" && s.kind !== "dsm" ? `<button type="button" data-fix-survey="${s.id}">Replace files of ${escapeHtml(s.name)}</button>` : ""}
-          <button type="button" data-delete-survey="${s.id}">Delete survey ${escapeHtml(s.name)}</button>
+          <button type="button" data-rename-survey="${s.id}">${t("survey.rename", { name: escapeHtml(s.name) })}</button>
+          ${s.status === "failed" && s.kind !== "dsm" ? `<button type="button" data-fix-survey="${s.id}">${t("survey.replaceFiles", { name: escapeHtml(s.name) })}</button>` : ""}
+          <button type="button" data-delete-survey="${s.id}">${t("survey.delete", { name: escapeHtml(s.name) })}</button>
         </span>
         ${surveyQualityHtml(s.quality)}
         ${surveyWarningsHtml(s.warnings)}
       </li>`,
     )
     .join("");
-  return `<div class="timeline" role="img" aria-label="Surveys from ${first} to ${last}"><ol class="axis">${marks}</ol>
+  return `<div class="timeline" role="img" aria-label="${escapeHtml(t("survey.timeline", { first, last }))}"><ol class="axis">${marks}</ol>
       <div class="axis-labels"><span>${first}</span><span>${last}</span></div></div>
     <ol class="survey-list">${rows}</ol>`;
 }

@@ -4,13 +4,14 @@ import { deliveryTarget } from "./alerts";
 import { detectionsUrl, productName } from "./downloads";
 import { reportLine } from "./reports";
 import { cronOf } from "./schedules";
-import { plural, timeZones } from "./tools";
+import { t } from "../i18n";
+import { timeZones } from "./tools";
 
 describe("the site's tools", () => {
   it("says one thing in the singular and more in the plural", () => {
-    expect(plural(1, "detection", "detections")).toBe("1 detection");
-    expect(plural(0, "detection", "detections")).toBe("0 detections");
-    expect(plural(5, "detection", "detections")).toBe("5 detections");
+    expect(t("count.detections", { count: 1 })).toBe("1 detection");
+    expect(t("count.detections", { count: 0 })).toBe("0 detections");
+    expect(t("count.detections", { count: 5 })).toBe("5 detections");
   });
 
   it("builds cron expressions from plain choices", () => {

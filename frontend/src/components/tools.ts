@@ -1,14 +1,10 @@
 // Small things every panel of a site's tools uses: a file saved with the token, a copy
-// button, words with their number, and the time zones to choose from.
+// button, and the time zones to choose from.
 
 import { ApiError, authHeaders, errorMessage } from "../api";
 import { escapeHtml } from "../format";
+import { t } from "../i18n";
 import "./panels.css";
-
-/** "1 detection", "2 detections": the count and the word that goes with it. */
-export function plural(n: number, one: string, many: string): string {
-  return `${n} ${n === 1 ? one : many}`;
-}
 
 /** The IANA zones this browser knows (Intl), for a searchable list; UTC where it knows none. */
 export function timeZones(): string[] {
@@ -66,5 +62,5 @@ export async function copyText(text: string, field?: HTMLInputElement): Promise<
 }
 
 export function failure(e: unknown): string {
-  return e instanceof ApiError ? e.message : "The server cannot be reached.";
+  return e instanceof ApiError ? e.message : t("error.unreachable");
 }

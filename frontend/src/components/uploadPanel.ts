@@ -4,9 +4,10 @@
 import { api, getJson, postJson } from "../api";
 import { escapeHtml, formatBytes, formatPercent, toZonedWallTime, zonedWallTimeToUtc } from "../format";
 import { faststart } from "../faststart";
+import { type MessageKey, t } from "../i18n";
 import type { Job, MapConfig, Site, Survey, SurveyFile, UnfinishedUpload } from "../types";
 import { cancelUpload, createUpload, forgetUpload, type RunningUpload, startUpload } from "../upload";
-import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey } from "../validation";
+import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey, MIN_IMAGES } from "../validation";
 import { fileWarningsHtml } from "../warnings";
 
 type Kind = "dsm" | "video" | "images";
@@ -17,7 +18,7 @@ interface UploadStatus {
   survey_id: number | null;
 }
 
-const ROLE_WORDS: Record<string, string> = { video: "video", log: "flight log", image: "photo" };
+const ROLE_WORDS: Record<string, MessageKey> = { video: "upload.roleVideo", log: "upload.roleLog", image: "upload.roleImage" };
 
 /** Asks before the page is left while files are going up (the browser's own dialog). */
 function holdPage(event: BeforeUnloadEvent): void {
@@ -50,43 +51,43 @@ export class UploadPanel {
     const now = toZonedWallTime(new Date(), this.site.timezone);
     this.box.innerHTML = `
       <form id="upload-form" novalidate>
-        <fieldset class="kinds"><legend>What are you uploading?</legend>
-          <label><input type="radio" name="kind" value="dsm" checked> DSM GeoTIFF</label>
-          <label><input type="radio" name="kind" value="video"> Video + flight log</label>
-          <label><input type="radio" name="kind" value="images"> Photos</label>
+        <fieldset class="kinds"><legend>${t("upload.what")}</legend>
+          <label><input type="radio" name="kind" value="dsm" checked> ${t("upload.kindDsm")}</label>
+          <label><input type="radio" name="kind" value="video"> ${t("upload.kindVideo")}</label>
+          <label><input type="radio" name="kind" value="images"> ${t("upload.kindImages")}</label>
         </fieldset>
         <div data-kind="dsm">
-          <label for="dsm-file">DSM (.tif, with its CRS)</label>
+          <label for="dsm-file">${t("upload.dsmFile")}</label>
           <input id="dsm-file" type="file" accept=".tif,.tiff,image/tiff">
         </div>
         <div data-kind="video" hidden>
-          <label for="video-file">Video (.mp4 or .mov)</label>
+          <label for="video-file">${t("upload.videoFile")}</label>
           <input id="video-file" type="file" accept=".mp4,.mov,video/*">
-          <label for="log-file">Flight log (.srt or .csv)</label>
+          <label for="log-file">${t("upload.logFile")}</label>
           <input id="log-file" type="file" accept=".srt,.csv,.txt">
         </div>
         <div data-kind="images" hidden>
-          <label for="image-files">Geotagged photos (.jpg, at least 3)</label>
+          <label for="image-files">${t("upload.imageFiles", { min: MIN_IMAGES })}</label>
           <input id="image-files" type="file" accept=".jpg,.jpeg,image/jpeg" multiple>
         </div>
-        <label for="survey-name">Survey name</label>
-        <input id="survey-name" maxlength="200" placeholder="e.g. After the storm">
-        <label for="captured-at">Flown at (time in ${escapeHtml(this.site.timezone)})</label>
+        <label for="survey-name">${t("upload.surveyName")}</label>
+        <input id="survey-name" maxlength="200" placeholder="${escapeHtml(t("upload.surveyNamePlaceholder"))}">
+        <label for="captured-at">${t("upload.flownAt", { zone: escapeHtml(this.site.timezone) })}</label>
         <input id="captured-at" type="datetime-local" value="${now}" required>
         <div class="buttons">
-          <button type="submit" id="upload-start">Upload</button>
-          <button type="button" id="upload-pause" disabled>Pause</button>
-          <button type="button" id="upload-cancel" disabled>Cancel</button>
+          <button type="submit" id="upload-start">${t("upload.start")}</button>
+          <button type="button" id="upload-pause" disabled>${t("upload.pause")}</button>
+          <button type="button" id="upload-cancel" disabled>${t("upload.cancel")}</button>
         </div>
-        <label for="upload-progress" class="visually-hidden">Upload progress</label>
+        <label for="upload-progress" class="visually-hidden">${t("upload.progress")}</label>
         <progress id="upload-progress" max="1" value="0" hidden></progress>
         <p id="upload-status" role="status" aria-live="polite"></p>
         <div id="upload-warnings" aria-live="polite"></div>
         <ul id="upload-errors" class="error" role="alert"></ul>
       </form>
       <section id="unfinished" aria-labelledby="unfinished-title" hidden>
-        <h3 id="unfinished-title">Unfinished uploads</h3>
-        <p class="muted">Choose the same file again to resume where it stopped, or cancel it.</p>
+        <h3 id="unfinished-title">${t("upload.unfinished")}</h3>
+        <p class="muted">${t("upload.unfinishedHelp")}</p>
         <ul id="unfinished-list" class="unfinished"></ul>
         <p id="unfinished-error" class="error" role="alert"></p>
       </section>`;
@@ -129,11 +130,16 @@ export class UploadPanel {
     this.$("#unfinished").hidden = shown.length === 0;
     this.$("#unfinished-list").innerHTML = shown
       .map((u) => {
-        const what = u.survey_id && u.role ? `${ROLE_WORDS[u.role]} of survey ${u.survey_id}` : "DSM";
-        return `<li data-upload-id="${escapeHtml(u.id)}"><span>${escapeHtml(u.filename)} (${what}):
-          ${formatBytes(u.offset)} of ${formatBytes(u.length)} sent</span>
-          <label>Resume ${escapeHtml(u.filename)} <input type="file" data-resume="${escapeHtml(u.id)}"></label>
-          <button type="button" data-cancel-upload="${escapeHtml(u.id)}">Cancel ${escapeHtml(u.filename)}</button></li>`;
+        const role = u.role ? ROLE_WORDS[u.role] : undefined;
+        const what = u.survey_id && role ? t("upload.fileOfSurvey", { role: t(role), id: u.survey_id }) : "DSM";
+        return `<li data-upload-id="${escapeHtml(u.id)}"><span>${t("upload.unfinishedLine", {
+          file: escapeHtml(u.filename),
+          what,
+          sent: formatBytes(u.offset),
+          total: formatBytes(u.length),
+        })}</span>
+          <label>${t("upload.resumeNamed", { file: escapeHtml(u.filename) })} <input type="file" data-resume="${escapeHtml(u.id)}"></label>
+          <button type="button" data-cancel-upload="${escapeHtml(u.id)}">${t("upload.cancelNamed", { file: escapeHtml(u.filename) })}</button></li>`;
       })
       .join("");
   }
@@ -144,7 +150,7 @@ export class UploadPanel {
     const body = upload.role === "video" ? await faststart(file) : file;
     if (file.name !== upload.filename || body.size !== upload.length) {
       this.$("#unfinished-error").textContent =
-        `That is not the file of this upload: choose ${upload.filename} (${formatBytes(upload.length)}).`;
+        t("upload.wrongFile", { file: upload.filename, size: formatBytes(upload.length) });
       return;
     }
     this.busy(true);
@@ -152,7 +158,7 @@ export class UploadPanel {
       const url = `/api/v1/uploads/${upload.id}`;
       const done = await this.sendFile(file, {}, file.name, body, url);
       if (upload.purpose === "dsm") {
-        this.status(`${file.name} is now survey ${done.survey_id}, ready to compare.`);
+        this.status(t("upload.dsmDone", { file: file.name, id: done.survey_id ?? "" }));
         if (done.survey_id) this.onSurvey(done.survey_id);
       } else if (upload.survey_id) {
         await this.processIfComplete(upload.survey_id);
@@ -172,20 +178,24 @@ export class UploadPanel {
     const survey = await getJson<Survey>(`sites/${this.site.id}/surveys/${surveyId}`);
     this.onSurvey(surveyId);
     if (survey.status !== "receiving" && survey.status !== "failed") {
-      this.status(`All files are up; survey ${surveyId} is ${survey.status}.`);
+      this.status(t("upload.allUpState", { id: surveyId, state: t(`survey.${survey.status}` as MessageKey) }));
       return;
     }
     try {
       this.onJob(await postJson<Job>(`sites/${this.site.id}/surveys/${surveyId}/process`, {}));
-      this.status(`All files are up; survey ${surveyId} is being reconstructed.`);
+      this.status(t("upload.allUpReconstructing", { id: surveyId }));
     } catch (e) {
-      this.status(`The file is up. Survey ${surveyId} is not processed yet: ${e instanceof Error ? e.message : e}`);
+      this.status(t("upload.notProcessed", { id: surveyId, reason: e instanceof Error ? e.message : String(e) }));
     }
   }
 
   private async cancelUnfinished(upload: UnfinishedUpload): Promise<void> {
-    const sent = `${formatBytes(upload.offset)} of ${formatBytes(upload.length)}`;
-    if (!window.confirm(`Cancel the upload of ${upload.filename}? The ${sent} already sent are deleted.`)) return;
+    const question = t("upload.confirmCancel", {
+      file: upload.filename,
+      sent: formatBytes(upload.offset),
+      total: formatBytes(upload.length),
+    });
+    if (!window.confirm(question)) return;
     try {
       await cancelUpload(`/api/v1/uploads/${upload.id}`);
     } catch (e) {
@@ -202,7 +212,7 @@ export class UploadPanel {
     if (radio) radio.checked = true;
     this.showKind();
     (this.$("#survey-name") as HTMLInputElement).value = survey.name;
-    this.status(`Fixing survey ${survey.id} (${survey.name}): choose the files that replace its own, then Upload.`);
+    this.status(t("upload.fixing", { id: survey.id, name: survey.name }));
     this.box.scrollIntoView({ block: "nearest" });
   }
 
@@ -253,7 +263,7 @@ export class UploadPanel {
     const max = this.config.max_upload_bytes;
     if (kind === "dsm") {
       const [file] = this.files("dsm-file");
-      if (!file) problems.push("Choose the DSM file.");
+      if (!file) problems.push(t("check.chooseDsm"));
       else problems.push(...checkDsmFile(file, new Uint8Array(await file.slice(0, 4).arrayBuffer()), max));
     } else if (kind === "video") {
       problems.push(...checkVideoSurvey(this.files("video-file")[0] ?? null, this.files("log-file")[0] ?? null, max));
@@ -294,23 +304,25 @@ export class UploadPanel {
     return new Promise((resolve, reject) => {
       this.cancelled = reject;
       startUpload(file, metadata, this.config.upload_chunk_bytes, {
-        onHashing: (f) => this.status(`Checking ${label} before sending: ${formatPercent(f)}`),
+        onHashing: (f) => this.status(t("upload.hashing", { file: label, percent: formatPercent(f) })),
         onResuming: (offset, total) =>
-          this.status(`Resuming ${label}: ${formatBytes(offset)} of ${formatBytes(total)} were already sent.`),
+          this.status(t("upload.resuming", { file: label, sent: formatBytes(offset), total: formatBytes(total) })),
         onProgress: (sent, total) => {
           progress.value = total ? sent / total : 0;
-          this.status(`Uploading ${label}: ${formatBytes(sent)} of ${formatBytes(total)} (${formatPercent(sent / total)})`);
+          this.status(
+            t("upload.sending", { file: label, sent: formatBytes(sent), total: formatBytes(total), percent: formatPercent(sent / total) }),
+          );
         },
         onRetry: (message) => this.status(message),
         onSuccess: async (url) => {
-          this.status(`Checking ${label} on the server…`);
+          this.status(t("upload.checkingOnServer", { file: label }));
           try {
             resolve(await this.settled(url || uploadUrl || ""));
           } catch (e) {
             reject(e);
           }
         },
-        onError: (reason) => reject(new Error(`${label} was not uploaded: ${reason}.`)),
+        onError: (reason) => reject(new Error(t("upload.failed", { file: label, reason }))),
       }, body, uploadUrl)
         .then((running) => (this.running = running))
         .catch(reject);
@@ -321,7 +333,7 @@ export class UploadPanel {
   private async settled(url: string): Promise<UploadStatus> {
     for (;;) {
       const status = await getJson<UploadStatus>(url);
-      if (status.state === "failed") throw new Error(status.error ?? "the server refused the file");
+      if (status.state === "failed") throw new Error(status.error ?? t("upload.refused"));
       if (status.state === "complete") return status;
       await new Promise((r) => setTimeout(r, 1000));
     }
@@ -333,7 +345,7 @@ export class UploadPanel {
       { site_id: String(this.site.id), purpose: "dsm", captured_at: capturedAt, name: name || file.name },
       file.name,
     );
-    this.status(`${file.name} is now survey ${done.survey_id}, ready to compare.`);
+    this.status(t("upload.dsmDone", { file: file.name, id: done.survey_id ?? "" }));
     if (done.survey_id) this.onSurvey(done.survey_id);
   }
 
@@ -385,10 +397,12 @@ export class UploadPanel {
     for (const [i, { file, role }] of files.entries()) {
       if (present.has(file.name)) continue;
       const metadata = { site_id: String(this.site.id), purpose: "survey_file", survey_id: String(id), role };
-      if (role === "video") this.status(`Preparing ${file.name} so that it is processed while it uploads…`);
+      if (role === "video") this.status(t("upload.preparing", { file: file.name }));
       const body = role === "video" ? await faststart(file) : file;
-      const url = await createUpload(file, metadata, body, (f) => this.status(`Checking ${file.name} before sending: ${formatPercent(f)}`));
-      sending.push({ file, role, body, url, metadata, label: `${file.name} (${i + 1} of ${files.length})` });
+      const url = await createUpload(file, metadata, body, (f) =>
+        this.status(t("upload.hashing", { file: file.name, percent: formatPercent(f) })),
+      );
+      sending.push({ file, role, body, url, metadata, label: t("upload.fileOf", { file: file.name, n: i + 1, count: files.length }) });
     }
     let submitted = survey.status === "processing";
     const submit = async (): Promise<void> => {
@@ -414,7 +428,7 @@ export class UploadPanel {
     if (survey.status === "failed" && !this.fixing) await this.retryReconstruction(id);
     this.fixing = null;
     localStorage.removeItem(key);
-    this.status(`All files are up; survey ${id} is being reconstructed.`);
+    this.status(t("upload.allUpReconstructing", { id }));
     void this.loadUnfinished();
   }
 
@@ -429,12 +443,12 @@ export class UploadPanel {
     const button = this.$("#upload-pause") as HTMLButtonElement;
     if (this.paused) {
       this.running.resume();
-      button.textContent = "Pause";
-      this.status("Resuming…");
+      button.textContent = t("upload.pause");
+      this.status(t("upload.resumingNow"));
     } else {
       await this.running.pause();
-      button.textContent = "Resume";
-      this.status("Paused. Resume here, or later, even after closing the page: choose the same file again.");
+      button.textContent = t("upload.resume");
+      this.status(t("upload.paused"));
     }
     this.paused = !this.paused;
   }
@@ -442,7 +456,7 @@ export class UploadPanel {
   private async cancel(): Promise<void> {
     await this.running?.cancel();
     this.running = null;
-    this.cancelled?.(new Error("Upload cancelled; what was sent is deleted."));
+    this.cancelled?.(new Error(t("upload.cancelled")));
     this.cancelled = null;
   }
 }

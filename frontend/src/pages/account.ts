@@ -3,22 +3,23 @@
 import { ApiError, api, getJson, postJson, session } from "../api";
 import { PeoplePanel } from "../components/people";
 import { escapeHtml, formatDateTime } from "../format";
+import { t } from "../i18n";
 import type { ApiTokenInfo, NewApiToken } from "../types";
 import { header, wireSignOut } from "./header";
 
 const when = (iso: string | null) => (iso ? escapeHtml(formatDateTime(iso, "UTC")) : "—");
 
 function tokenRows(tokens: ApiTokenInfo[]): string {
-  if (!tokens.length) return `<tr><td colspan="6" class="muted">No tokens.</td></tr>`;
+  if (!tokens.length) return `<tr><td colspan="6" class="muted">${t("account.noTokens")}</td></tr>`;
   return tokens
     .map(
-      (t) => `<tr data-token="${t.id}">
-        <td>${escapeHtml(t.name)}${t.current ? " <em>(this one)</em>" : ""}</td>
-        <td>${t.kind === "session" ? "sign-in" : "API"}</td>
-        <td><code>${escapeHtml(t.prefix)}…</code></td>
-        <td>${when(t.last_used_at)}</td>
-        <td>${t.expires_at ? when(t.expires_at) : "never"}</td>
-        <td><button type="button" class="revoke" data-id="${t.id}" aria-label="Revoke ${escapeHtml(t.name)}">Revoke</button></td>
+      (token) => `<tr data-token="${token.id}">
+        <td>${escapeHtml(token.name)}${token.current ? ` <em>${t("account.thisOne")}</em>` : ""}</td>
+        <td>${token.kind === "session" ? t("account.kindSession") : t("account.kindApi")}</td>
+        <td><code>${escapeHtml(token.prefix)}…</code></td>
+        <td>${when(token.last_used_at)}</td>
+        <td>${token.expires_at ? when(token.expires_at) : t("account.never")}</td>
+        <td><button type="button" class="revoke" data-id="${token.id}" aria-label="${escapeHtml(t("account.revokeNamed", { name: token.name }))}">${t("account.revoke")}</button></td>
       </tr>`,
     )
     .join("");
@@ -26,36 +27,36 @@ function tokenRows(tokens: ApiTokenInfo[]): string {
 
 export async function renderAccount(app: HTMLElement): Promise<void> {
   const isUser = !(session.who ?? "").startsWith("token ");
-  app.innerHTML = `${header(`<a href="#/">Sites</a> › <span>Account</span>`)}
+  app.innerHTML = `${header(`<a href="#/">${t("sites.title")}</a> › <span>${t("account.title")}</span>`)}
     <main id="main" class="account">
-      <h1>Account</h1>
+      <h1>${t("account.title")}</h1>
       <section class="card" aria-labelledby="tokens-title">
-        <h2 id="tokens-title">API tokens</h2>
-        <p class="muted">For QGIS, GDAL and scripts. Each expires; revoke one as soon as it leaks.</p>
-        <table class="tokens"><thead><tr><th>Name</th><th>Kind</th><th>Starts with</th>
-          <th>Last used (UTC)</th><th>Expires (UTC)</th><th></th></tr></thead>
-          <tbody id="token-rows"><tr><td colspan="6">Loading…</td></tr></tbody></table>
+        <h2 id="tokens-title">${t("account.tokens")}</h2>
+        <p class="muted">${t("account.tokensHelp")}</p>
+        <table class="tokens"><thead><tr><th>${t("account.colName")}</th><th>${t("account.colKind")}</th><th>${t("account.colPrefix")}</th>
+          <th>${t("account.colLastUsed")}</th><th>${t("account.colExpires")}</th><th></th></tr></thead>
+          <tbody id="token-rows"><tr><td colspan="6">${t("common.loading")}</td></tr></tbody></table>
         <form id="new-token">
-          <label for="token-name">New token for</label><input id="token-name" required maxlength="200">
-          <label for="token-days">Valid for (days)</label><input id="token-days" type="number" min="1" max="365" value="30" required>
-          <button type="submit">Make token</button>
+          <label for="token-name">${t("account.newTokenFor")}</label><input id="token-name" required maxlength="200">
+          <label for="token-days">${t("account.validDays")}</label><input id="token-days" type="number" min="1" max="365" value="30" required>
+          <button type="submit">${t("account.makeToken")}</button>
           <p class="error" role="alert" id="token-error"></p>
           <p class="notice" id="token-secret" hidden></p>
         </form>
       </section>
       <section class="card" aria-labelledby="people-title">
-        <h2 id="people-title">Members and users</h2>
-        <div id="people"><p>Loading…</p></div>
+        <h2 id="people-title">${t("account.people")}</h2>
+        <div id="people"><p>${t("common.loading")}</p></div>
       </section>
       ${
         isUser
           ? `<form id="password-change" class="card" aria-labelledby="password-change-title">
-        <h2 id="password-change-title">Password</h2>
-        <label for="current-password">Current password</label>
+        <h2 id="password-change-title">${t("account.password")}</h2>
+        <label for="current-password">${t("account.currentPassword")}</label>
         <input id="current-password" type="password" autocomplete="current-password" required>
-        <label for="new-password">New password (at least 8 characters, not a common one)</label>
+        <label for="new-password">${t("account.newPassword")}</label>
         <input id="new-password" type="password" autocomplete="new-password" required>
-        <button type="submit">Change password</button>
+        <button type="submit">${t("account.changePassword")}</button>
         <p class="error" role="alert" id="password-change-error"></p>
       </form>`
           : ""
@@ -84,10 +85,10 @@ export async function renderAccount(app: HTMLElement): Promise<void> {
         days: Number((app.querySelector("#token-days") as HTMLInputElement).value),
       });
       secret.hidden = false;
-      secret.innerHTML = `Copy it now, it is not shown again: <code id="new-token-value">${escapeHtml(made.token)}</code>`;
+      secret.innerHTML = t("account.copyNow", { token: `<code id="new-token-value">${escapeHtml(made.token)}</code>` });
       await refresh();
     } catch (e) {
-      error.textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+      error.textContent = e instanceof ApiError ? e.message : t("error.unreachable");
     }
   });
   app.querySelector("#password-change")?.addEventListener("submit", async (event) => {
@@ -100,11 +101,11 @@ export async function renderAccount(app: HTMLElement): Promise<void> {
         new_password: (app.querySelector("#new-password") as HTMLInputElement).value,
       });
       // Every session ends with the old password, this one too.
-      sessionStorage.setItem("slidewatch.notice", "Your password is changed: sign in with the new one.");
+      sessionStorage.setItem("slidewatch.notice", t("account.passwordChanged"));
       session.clear();
       location.hash = "#/"; // the sign-in form, which shows the notice
     } catch (e) {
-      error.textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+      error.textContent = e instanceof ApiError ? e.message : t("error.unreachable");
     }
   });
   await Promise.all([refresh(), new PeoplePanel(app.querySelector("#people") as HTMLElement).load()]);

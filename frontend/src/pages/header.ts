@@ -1,5 +1,7 @@
 import { api, session } from "../api";
 import { escapeHtml } from "../format";
+import { t } from "../i18n";
+import { languageSelectHtml, wireLanguageSelect } from "../i18n/selector";
 
 const SIGN_IN_NOTICE = "slidewatch.sign-in-notice";
 
@@ -9,24 +11,26 @@ export function keepSignInNotice(notice: string | null): void {
   else sessionStorage.removeItem(SIGN_IN_NOTICE);
 }
 
-/** The top bar: where we are, who is signed in, the account, sign out; and the sign-in
- * notice, if there is one. */
+/** The top bar: where we are, who is signed in, the account, the language, sign out; and
+ * the sign-in notice, if there is one. */
 export function header(crumbs: string): string {
   const notice = sessionStorage.getItem(SIGN_IN_NOTICE);
   return `<header class="topbar">
     <nav aria-label="Breadcrumb">${crumbs}</nav>
-    <div class="who">Signed in as <strong>${escapeHtml(session.who ?? "")}</strong>
-      <a href="#/account">Account</a>
-      <button type="button" id="sign-out">Sign out</button></div>
+    <div class="who">${t("header.signedInAs", { who: `<strong>${escapeHtml(session.who ?? "")}</strong>` })}
+      <a href="#/account">${t("header.account")}</a>
+      ${languageSelectHtml()}
+      <button type="button" id="sign-out">${t("header.signOut")}</button></div>
   </header>${
     notice
       ? `<p class="notice" role="status" id="sign-in-notice">${escapeHtml(notice)}
-          <button type="button" id="dismiss-notice">Dismiss</button></p>`
+          <button type="button" id="dismiss-notice">${t("header.dismiss")}</button></p>`
       : ""
   }`;
 }
 
 export function wireSignOut(root: HTMLElement): void {
+  wireLanguageSelect(root);
   root.querySelector("#dismiss-notice")?.addEventListener("click", () => {
     keepSignInNotice(null);
     root.querySelector("#sign-in-notice")?.remove();

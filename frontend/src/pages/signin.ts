@@ -2,6 +2,8 @@
 
 import { ApiError, api, session } from "../api";
 import { escapeHtml } from "../format";
+import { t } from "../i18n";
+import { languageSelectHtml, wireLanguageSelect } from "../i18n/selector";
 import type { WhoAmI } from "../types";
 import { keepSignInNotice } from "./header";
 
@@ -10,24 +12,25 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
   sessionStorage.removeItem("slidewatch.notice");
   app.innerHTML = `
     <main id="main" class="sign-in">
+      <p class="language-row">${languageSelectHtml()}</p>
       <h1>slidewatch</h1>
-      <p class="lead">Landslides found by comparing drone surveys over time.</p>
+      <p class="lead">${t("signIn.lead")}</p>
       ${notice ? `<p class="notice" role="status">${escapeHtml(notice)}</p>` : ""}
       <form id="password-form" aria-labelledby="password-title">
-        <h2 id="password-title">Sign in</h2>
-        <label for="username">User name</label>
+        <h2 id="password-title">${t("signIn.title")}</h2>
+        <label for="username">${t("signIn.username")}</label>
         <input id="username" name="username" autocomplete="username" required>
-        <label for="password">Password</label>
+        <label for="password">${t("signIn.password")}</label>
         <input id="password" name="password" type="password" autocomplete="current-password" required>
-        <button type="submit">Sign in</button>
+        <button type="submit">${t("signIn.submit")}</button>
         <p class="error" role="alert" id="password-error"></p>
       </form>
       <details>
-        <summary>Sign in with an API token instead</summary>
+        <summary>${t("signIn.withToken")}</summary>
         <form id="token-form">
-          <label for="token">API token (from <code>make run</code> or <code>slidewatch create-token</code>)</label>
+          <label for="token">${t("signIn.tokenLabel", { makeRun: "<code>make run</code>", createToken: "<code>slidewatch create-token</code>" })}</label>
           <input id="token" name="token" autocomplete="off" required>
-          <button type="submit">Use token</button>
+          <button type="submit">${t("signIn.useToken")}</button>
           <p class="error" role="alert" id="token-error"></p>
         </form>
       </details>
@@ -47,7 +50,7 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
       keepSignInNotice(body.notice);
       done();
     } catch (e) {
-      error.textContent = e instanceof ApiError ? `Not signed in: ${e.message}.` : "The server cannot be reached.";
+      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: e.message }) : t("error.unreachable");
     }
   });
   const tokenForm = app.querySelector("#token-form") as HTMLFormElement;
@@ -62,8 +65,9 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
       done();
     } catch (e) {
       session.clear();
-      error.textContent = e instanceof ApiError ? `Not signed in: ${e.message}.` : "The server cannot be reached.";
+      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: e.message }) : t("error.unreachable");
     }
   });
+  wireLanguageSelect(app);
   (app.querySelector("#username") as HTMLInputElement).focus();
 }

@@ -10,7 +10,8 @@ import { SchedulesPanel } from "../components/schedules";
 import { isTimeZone, timeZoneField } from "../components/tools";
 import { renderTimeline } from "../components/timeline";
 import { UploadPanel } from "../components/uploadPanel";
-import { escapeHtml, formatArea, formatDate, formatMetres, formatVolume } from "../format";
+import { escapeHtml, formatArea, formatDate, formatFixed, formatMetres, formatVolume } from "../format";
+import { type MessageKey, t } from "../i18n";
 import { MapView } from "../map/mapView";
 import { detectionText, methodOptionsHtml, methodSummary } from "../methods";
 import type {
@@ -33,75 +34,77 @@ interface State {
   shown: Comparison | null;
 }
 
-const JUMPS: Array<[string, string]> = [
+const JUMPS: Array<[string, MessageKey]> = [
   // Names that no other button's contains (tests and screen readers find buttons by name).
-  ["upload-title", "Go to the upload form"],
-  ["compare-title", "Go to comparing"],
-  ["detections-title", "Go to the detections list"],
-  ["tools-title", "Go to reports and downloads"],
+  ["upload-title", "site.jumpUpload"],
+  ["compare-title", "site.jumpCompare"],
+  ["detections-title", "site.jumpDetections"],
+  ["tools-title", "site.jumpTools"],
 ];
+
+const COMPARISON_STATES = new Set(["queued", "running", "succeeded", "failed"]);
+/** A comparison's state in words; one the page does not know as the API says it. */
+const stateWord = (state: string) => (COMPARISON_STATES.has(state) ? t(`state.${state}` as MessageKey) : state);
 
 function comparisonLabel(c: Comparison, surveys: Survey[], timeZone: string): string {
   const name = (id: number) => {
     const s = surveys.find((x) => x.id === id);
-    return s ? `${s.name} (${formatDate(s.captured_at, timeZone)})` : `survey ${id}`;
+    return s ? `${s.name} (${formatDate(s.captured_at, timeZone)})` : t("site.surveyNumbered", { id });
   };
   const pair = `${name(c.pre_survey_id)} → ${name(c.post_survey_id)}`;
   return c.name ? `${c.name}: ${pair}` : pair;
 }
 
-const plural = (n: number, one: string, many: string) => `${n} ${n === 1 ? one : many}`;
-
 /** A rename asked for in the browser's own prompt; null when cancelled or unchanged. */
-function askName(what: string, current: string): string | null {
-  const name = window.prompt(`New name of ${what}:`, current)?.trim();
+function askName(question: string, current: string): string | null {
+  const name = window.prompt(question, current)?.trim();
   return name && name !== current ? name : null;
 }
 
 export async function renderSite(app: HTMLElement, siteId: number, config: MapConfig): Promise<() => void> {
   const site = await getJson<Site>(`sites/${siteId}`);
-  app.innerHTML = `${header(`<a href="#/">Sites</a> <span aria-hidden="true">/</span> <span>${escapeHtml(site.name)}</span>`)}
+  app.innerHTML = `${header(`<a href="#/">${t("sites.title")}</a> <span aria-hidden="true">/</span> <span>${escapeHtml(site.name)}</span>`)}
     <main id="main" class="site-layout">
-      <aside class="sidebar" aria-label="Site">
+      <aside class="sidebar" aria-label="${escapeHtml(t("site.sidebar"))}">
         <h1>${escapeHtml(site.name)}</h1>
-        <nav class="jump" aria-label="On this page">${JUMPS.map(([id, label]) => `<button type="button" data-jump="${id}">${label}</button>`).join("")}</nav>
-        <p class="muted">Times in <span id="site-timezone">${escapeHtml(site.timezone)}</span>. ${escapeHtml(site.description)}</p>
-        <p class="row-actions"><button type="button" id="rename-site">Rename site</button>
-          <button type="button" id="delete-site">Delete site</button>
-          <button type="button" id="change-timezone" aria-expanded="false">Change time zone</button></p>
+        <nav class="jump" aria-label="${escapeHtml(t("site.onThisPage"))}">${JUMPS.map(([id, label]) => `<button type="button" data-jump="${id}">${t(label)}</button>`).join("")}</nav>
+        <p class="muted">${t("site.timesIn", { zone: `<span id="site-timezone">${escapeHtml(site.timezone)}</span>` })} ${escapeHtml(site.description)}</p>
+        <p class="row-actions"><button type="button" id="rename-site">${t("site.rename")}</button>
+          <button type="button" id="delete-site">${t("site.delete")}</button>
+          <button type="button" id="change-timezone" aria-expanded="false">${t("site.changeTimeZone")}</button></p>
         <form id="timezone-form" class="tools" hidden>
-          ${timeZoneField("timezone-input", site.timezone, "Time zone of the site (type to search)")}
-          <button type="submit">Save time zone</button>
+          ${timeZoneField("timezone-input", site.timezone, t("site.timeZoneField"))}
+          <button type="submit">${t("site.saveTimeZone")}</button>
         </form>
         <p class="error" role="alert" id="manage-error"></p>
-        <section aria-labelledby="surveys-title"><h2 id="surveys-title">Surveys</h2><div id="surveys"></div></section>
-        <section aria-labelledby="compare-title"><h2 id="compare-title">Compare two surveys</h2>
+        <section aria-labelledby="surveys-title"><h2 id="surveys-title">${t("site.surveys")}</h2><div id="surveys"></div></section>
+        <section aria-labelledby="compare-title"><h2 id="compare-title">${t("site.compareTitle")}</h2>
           <form id="compare-form" class="compare">
-            <label for="pre-survey">Before (pre)</label><select id="pre-survey" required></select>
-            <label for="post-survey">After (post)</label><select id="post-survey" required></select>
-            <label for="method">Detection method</label>
+            <label for="pre-survey">${t("site.pre")}</label><select id="pre-survey" required></select>
+            <label for="post-survey">${t("site.post")}</label><select id="post-survey" required></select>
+            <label for="method">${t("site.method")}</label>
             <select id="method" aria-describedby="method-summary"></select>
             <p class="muted method-summary" id="method-summary"></p>
-            <label class="check"><input type="checkbox" id="run-again"> Run again even if these surveys were compared this way</label>
-            <button type="submit">Compare</button>
+            <label class="check"><input type="checkbox" id="run-again"> ${t("site.runAgain")}</label>
+            <button type="submit">${t("site.compare")}</button>
             <p class="muted" role="status" id="compare-status"></p>
             <p class="error" role="alert" id="compare-error"></p>
           </form>
         </section>
-        <section aria-labelledby="comparisons-title"><h2 id="comparisons-title">Comparisons</h2><ul id="comparisons" class="comparisons"></ul></section>
-        <section aria-labelledby="jobs-title"><h2 id="jobs-title">Processing</h2><div id="jobs"></div></section>
-        <section aria-labelledby="detections-title"><h2 id="detections-title">Detections</h2><div id="detections"></div>
-          <p><a href="#" id="export-labels">Download verdicts as training labels (GeoJSON)</a></p></section>
-        <section aria-labelledby="tools-title" class="tools"><h2 id="tools-title">Reports, downloads, GIS and alerts</h2>
-          <details id="reports-section"><summary>Reports</summary><div id="reports"></div></details>
-          <details id="downloads-section"><summary>Downloads</summary><div id="downloads"></div></details>
-          <details id="gis-section"><summary>Use in GIS</summary><div id="gis"></div></details>
-          <details id="schedules-section"><summary>Monitoring schedules</summary><div id="schedules"></div></details>
-          <details id="alerts-section"><summary>Alerts</summary><div id="alerts"></div></details>
+        <section aria-labelledby="comparisons-title"><h2 id="comparisons-title">${t("site.comparisons")}</h2><ul id="comparisons" class="comparisons"></ul></section>
+        <section aria-labelledby="jobs-title"><h2 id="jobs-title">${t("site.processing")}</h2><div id="jobs"></div></section>
+        <section aria-labelledby="detections-title"><h2 id="detections-title">${t("site.detections")}</h2><div id="detections"></div>
+          <p><a href="#" id="export-labels">${t("site.exportLabels")}</a></p></section>
+        <section aria-labelledby="tools-title" class="tools"><h2 id="tools-title">${t("site.tools")}</h2>
+          <details id="reports-section"><summary>${t("site.reports")}</summary><div id="reports"></div></details>
+          <details id="downloads-section"><summary>${t("site.downloads")}</summary><div id="downloads"></div></details>
+          <details id="gis-section"><summary>${t("site.gis")}</summary><div id="gis"></div></details>
+          <details id="schedules-section"><summary>${t("site.schedules")}</summary><div id="schedules"></div></details>
+          <details id="alerts-section"><summary>${t("site.alerts")}</summary><div id="alerts"></div></details>
         </section>
-        <section aria-labelledby="upload-title"><h2 id="upload-title">Upload a survey</h2><div id="upload"></div></section>
+        <section aria-labelledby="upload-title"><h2 id="upload-title">${t("site.upload")}</h2><div id="upload"></div></section>
       </aside>
-      <div class="map-wrap"><div id="map" role="region" aria-label="Map of ${escapeHtml(site.name)}" tabindex="0"></div></div>
+      <div class="map-wrap"><div id="map" role="region" aria-label="${escapeHtml(t("site.mapOf", { name: site.name }))}" tabindex="0"></div></div>
     </main>`;
   wireSignOut(app);
   // Once the page is left (the site deleted, another page shown), late answers of requests
@@ -146,7 +149,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     event.preventDefault();
     void manage(async () => {
       const timezone = ($("timezone-input") as HTMLInputElement).value.trim();
-      if (!isTimeZone(timezone)) throw new ApiError(422, `"${timezone}" is not a time zone of the list`);
+      if (!isTimeZone(timezone)) throw new ApiError(422, t("site.notTimeZone", { zone: timezone }));
       await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ timezone }) });
       window.location.reload(); // every time on the page is shown anew in the new zone
     });
@@ -177,26 +180,30 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
           .reverse()
           .map((c) => {
             const summary = c.summary
-              ? `${plural(c.summary.detections ?? 0, "detection", "detections")}, ${formatArea(c.summary.total_area_m2)}, loss ${formatVolume(c.summary.total_volume_loss_m3)}`
+              ? t("site.comparisonSummary", {
+                  detections: t("count.detections", { count: c.summary.detections ?? 0 }),
+                  area: formatArea(c.summary.total_area_m2),
+                  loss: formatVolume(c.summary.total_volume_loss_m3),
+                })
               : escapeHtml(c.error ?? "");
             const current = state.shown?.id === c.id ? "aria-current=\"true\"" : "";
             const how = detectionText(c.detection);
             return `<li class="comparison status-${c.status}" data-comparison-id="${c.id}">
-              <button type="button" data-show="${c.id}" ${current}>Show comparison ${c.id} on the map</button>
+              <button type="button" data-show="${c.id}" ${current}>${t("site.showComparison", { id: c.id })}</button>
               <span>${escapeHtml(comparisonLabel(c, state.surveys, site.timezone))}</span>
-              <span class="muted">${escapeHtml(c.method)} · <span class="comparison-status">${c.status}</span> · ${summary}</span>
+              <span class="muted">${escapeHtml(c.method)} · <span class="comparison-status">${stateWord(c.status)}</span> · ${summary}</span>
               ${how ? `<span class="muted comparison-detection">${escapeHtml(how)}</span>` : ""}
               ${comparisonWarningsHtml(c.warnings)}
-              <span class="row-actions"><button type="button" data-rename-comparison="${c.id}">Rename comparison ${c.id}</button>
-                <button type="button" data-delete-comparison="${c.id}">Delete comparison ${c.id}</button></span></li>`;
+              <span class="row-actions"><button type="button" data-rename-comparison="${c.id}">${t("site.renameComparison", { id: c.id })}</button>
+                <button type="button" data-delete-comparison="${c.id}">${t("site.deleteComparison", { id: c.id })}</button></span></li>`;
           })
           .join("")
-      : `<li class="muted">No comparison yet.</li>`;
+      : `<li class="muted">${t("site.noComparison")}</li>`;
   }
 
   function renderDetections(features: DetectionFeature[]): void {
     if (!state.shown) {
-      $("detections").innerHTML = `<p class="muted">Show a finished comparison to see its detections.</p>`;
+      $("detections").innerHTML = `<p class="muted">${t("site.showToSeeDetections")}</p>`;
       return;
     }
     $("detections").innerHTML = features.length
@@ -204,11 +211,15 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
           .map(
             // The label (1…n in this comparison) is the one the GeoJSON, the exports and
             // the report give; the database id only finds the polygon on the map.
-            (f) => `<li><button type="button" data-detection="${f.id}">Detection ${f.properties.label ?? f.id}</button>
-              ${formatArea(f.properties.area_m2)}, max |Δh| ${formatMetres(f.properties.max_abs_dh_m)}, score ${f.properties.score.toFixed(2)}</li>`,
+            (f) => `<li><button type="button" data-detection="${f.id}">${t("popup.title", { label: f.properties.label ?? f.id })}</button>
+              ${t("site.detectionLine", {
+                area: formatArea(f.properties.area_m2),
+                dh: formatMetres(f.properties.max_abs_dh_m),
+                score: formatFixed(f.properties.score, 2),
+              })}</li>`,
           )
           .join("")}</ol>`
-      : `<p>No landslide found between these surveys.</p>`;
+      : `<p>${t("site.noLandslide")}</p>`;
   }
 
   async function show(comparison: Comparison | null): Promise<void> {
@@ -243,7 +254,9 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       methods = await getJson<DetectionMethod[]>("methods");
     } catch (e) {
       // Without the list the server still applies its default: the form sends no method.
-      $("compare-error").textContent = `Detection methods unavailable: ${e instanceof ApiError ? e.message : "the server cannot be reached."}`;
+      $("compare-error").textContent = t("site.methodsUnavailable", {
+        reason: e instanceof ApiError ? e.message : t("site.unreachableLower"),
+      });
       return;
     }
     methodSelect.innerHTML = methodOptionsHtml(methods);
@@ -289,12 +302,12 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     try {
       await action();
     } catch (e) {
-      $("manage-error").textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+      $("manage-error").textContent = e instanceof ApiError ? e.message : t("error.unreachable");
     }
   }
 
   async function renameSite(): Promise<void> {
-    const name = askName(`site "${site.name}"`, site.name);
+    const name = askName(t("site.askSiteName", { name: site.name }), site.name);
     if (!name) return;
     await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ name }) });
     window.location.reload();
@@ -302,17 +315,19 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
 
   async function deleteSite(): Promise<void> {
     const detections = state.comparisons.reduce((n, c) => n + (c.summary?.detections ?? 0), 0);
-    const what =
-      `Delete the site "${site.name}" with everything in it: ${plural(state.surveys.length, "survey", "surveys")}, ` +
-      `${plural(state.comparisons.length, "comparison", "comparisons")} with ${plural(detections, "detection", "detections")} and their verdicts, ` +
-      `every job, report, schedule, alert setting and file of the site? This cannot be undone.`;
+    const what = t("site.confirmDelete", {
+      name: site.name,
+      surveys: t("count.surveys", { count: state.surveys.length }),
+      comparisons: t("count.comparisons", { count: state.comparisons.length }),
+      detections: t("count.detections", { count: detections }),
+    });
     if (!window.confirm(what)) return;
     await api(`sites/${siteId}`, { method: "DELETE" });
     window.location.hash = "#/";
   }
 
   async function renameSurvey(survey: Survey): Promise<void> {
-    const name = askName(`survey "${survey.name}"`, survey.name);
+    const name = askName(t("site.askSurveyName", { name: survey.name }), survey.name);
     if (!name) return;
     await api(`sites/${siteId}/surveys/${survey.id}`, { method: "PATCH", body: JSON.stringify({ name }) });
     await loadSurveys();
@@ -321,11 +336,16 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
 
   async function deleteSurvey(survey: Survey): Promise<void> {
     const using = state.comparisons.filter((c) => c.pre_survey_id === survey.id || c.post_survey_id === survey.id);
-    const files = survey.kind === "dsm" ? "its DSM" : "its uploaded files, unfinished uploads";
-    const also = using.length
-      ? ` and the ${plural(using.length, "comparison", "comparisons")} made with it (${using.map((c) => c.id).join(", ")}) with their detections`
-      : "";
-    if (!window.confirm(`Delete the survey "${survey.name}" with ${files}, products and jobs${also}? This cannot be undone.`)) return;
+    const question = t(survey.kind === "dsm" ? "site.confirmDeleteDsmSurvey" : "site.confirmDeleteSourceSurvey", {
+      name: survey.name,
+      also: using.length
+        ? t("site.confirmDeleteSurveyAlso", {
+            comparisons: t("count.comparisons", { count: using.length }),
+            ids: using.map((c) => c.id).join(", "),
+          })
+        : "",
+    });
+    if (!window.confirm(question)) return;
     for (const c of using) await api(`sites/${siteId}/comparisons/${c.id}`, { method: "DELETE" });
     await api(`sites/${siteId}/surveys/${survey.id}`, { method: "DELETE" });
     if (state.shown && using.some((c) => c.id === state.shown?.id)) state.shown = null;
@@ -335,7 +355,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   }
 
   async function renameComparison(comparison: Comparison): Promise<void> {
-    const name = window.prompt(`New name of comparison ${comparison.id} (empty: named by its surveys):`, comparison.name);
+    const name = window.prompt(t("site.askComparisonName", { id: comparison.id }), comparison.name);
     if (name === null || name.trim() === comparison.name) return;
     await api(`sites/${siteId}/comparisons/${comparison.id}`, { method: "PATCH", body: JSON.stringify({ name: name.trim() }) });
     await loadComparisons(false);
@@ -344,7 +364,11 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   async function deleteComparison(comparison: Comparison): Promise<void> {
     const found = comparison.summary?.detections ?? 0;
     const label = comparisonLabel(comparison, state.surveys, site.timezone);
-    const what = `Delete comparison ${comparison.id} (${label}) with its ${plural(found, "detection", "detections")}, their verdicts, its products (Δh and more) and jobs? Its surveys stay. This cannot be undone.`;
+    const what = t("site.confirmDeleteComparison", {
+      id: comparison.id,
+      label,
+      detections: t("count.detections", { count: found }),
+    });
     if (!window.confirm(what)) return;
     await api(`sites/${siteId}/comparisons/${comparison.id}`, { method: "DELETE" });
     const wasShown = state.shown?.id === comparison.id;
@@ -371,8 +395,10 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       if (created.existing) {
         // Made before: opened rather than made again.
         const shown = state.comparisons.find((c) => c.id === created.comparison.id) ?? created.comparison;
-        $("compare-status").textContent =
-          `These surveys were already compared with ${created.comparison.method}: comparison ${created.comparison.id} is shown. Tick "Run again" to make a new one.`;
+        $("compare-status").textContent = t("site.alreadyCompared", {
+          method: created.comparison.method,
+          id: created.comparison.id,
+        });
         await show(shown);
         return;
       }
@@ -380,7 +406,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
       renderComparisons();
       if (created.job) jobs.show([created.job]);
     } catch (e) {
-      $("compare-error").textContent = e instanceof ApiError ? e.message : "The server cannot be reached.";
+      $("compare-error").textContent = e instanceof ApiError ? e.message : t("error.unreachable");
     }
   });
   $("export-labels").addEventListener("click", async (event) => {

@@ -3,24 +3,25 @@
 import { ApiError, getJson, postJson } from "../api";
 import { timeZoneField } from "../components/tools";
 import { escapeHtml, formatDate } from "../format";
+import { t } from "../i18n";
 import type { Site } from "../types";
 import { header, wireSignOut } from "./header";
 
 export async function renderSites(app: HTMLElement): Promise<void> {
-  app.innerHTML = `${header("<span>Sites</span>")}
+  app.innerHTML = `${header(`<span>${t("sites.title")}</span>`)}
     <main id="main" class="sites">
-      <h1>Sites</h1>
-      <ul class="site-list" id="site-list" aria-live="polite"><li>Loading…</li></ul>
+      <h1>${t("sites.title")}</h1>
+      <ul class="site-list" id="site-list" aria-live="polite"><li>${t("common.loading")}</li></ul>
       <form id="new-site" class="card">
-        <h2>New site</h2>
-        <label for="site-name">Name</label><input id="site-name" required maxlength="200">
-        <label for="site-description">Description</label><input id="site-description">
+        <h2>${t("sites.new")}</h2>
+        <label for="site-name">${t("sites.name")}</label><input id="site-name" required maxlength="200">
+        <label for="site-description">${t("sites.description")}</label><input id="site-description">
         ${timeZoneField(
           "site-timezone",
           Intl.DateTimeFormat().resolvedOptions().timeZone || "UTC",
-          "Time zone (times of the site are shown in it; type to search)",
+          t("sites.timeZone"),
         )}
-        <button type="submit">Create site</button>
+        <button type="submit">${t("sites.create")}</button>
         <p class="error" role="alert" id="site-error"></p>
       </form>
     </main>`;
@@ -39,7 +40,7 @@ export async function renderSites(app: HTMLElement): Promise<void> {
       location.hash = `#/sites/${site.id}`;
     } catch (e) {
       (app.querySelector("#site-error") as HTMLElement).textContent =
-        e instanceof ApiError ? e.message : "The server cannot be reached.";
+        e instanceof ApiError ? e.message : t("error.unreachable");
     }
   });
   const list = app.querySelector("#site-list") as HTMLElement;
@@ -48,8 +49,8 @@ export async function renderSites(app: HTMLElement): Promise<void> {
     ? sites
         .map(
           (s) => `<li><a href="#/sites/${s.id}">${escapeHtml(s.name)}</a>
-            <span class="muted">${escapeHtml(s.description)} · ${escapeHtml(s.timezone)} · since ${formatDate(s.created_at, s.timezone)}</span></li>`,
+            <span class="muted">${escapeHtml(s.description)} · ${escapeHtml(s.timezone)} · ${t("sites.since", { date: formatDate(s.created_at, s.timezone) })}</span></li>`,
         )
         .join("")
-    : "<li>No site yet: create one below.</li>";
+    : `<li>${t("sites.none")}</li>`;
 }
