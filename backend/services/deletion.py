@@ -1,8 +1,11 @@
 """Delete sites, surveys and comparisons with everything that hangs on them, files included.
 
 Rows go first, in one transaction (the database cascades to children); files are removed
-only after the commit, so a failed delete never leaves rows pointing at missing files.
+only after the commit, so a failed delete never leaves rows pointing at missing files. The
+map tiles of what was deleted leave the tile cache with the files.
 """
+
+from pathlib import Path
 
 from sqlalchemy import delete, or_, select
 from sqlalchemy.orm import Session
@@ -19,6 +22,7 @@ from backend.db.models import (
     Upload,
     UploadState,
 )
+from backend.services.tile_cache import forget_tiles, group_name
 from backend.storage import LocalStorage
 from backend.storage_layout import comparison_folder, site_uploads_folder, survey_folder
 
@@ -51,7 +55,12 @@ def _report_files_of(session: Session, site_id: int) -> list[StoredFile]:
 
 
 def _remove(
-    session: Session, storage: LocalStorage, files: list[StoredFile], folders: list[str]
+    session: Session,
+    storage: LocalStorage,
+    files: list[StoredFile],
+    folders: list[str],
+    tile_cache_dir: Path | None = None,
+    tile_groups: list[str] | None = None,
 ) -> None:
     paths = [f.path for f in files]
     session.execute(delete(StoredFile).where(StoredFile.id.in_([f.id for f in files])))
@@ -60,15 +69,28 @@ def _remove(
         storage.delete(path)
     for folder in folders:
         storage.delete_tree(folder)
+    if tile_cache_dir is not None:
+        forget_tiles(tile_cache_dir, tile_groups or [])
 
 
-def delete_comparison(session: Session, storage: LocalStorage, comparison: Comparison) -> None:
+def delete_comparison(
+    session: Session,
+    storage: LocalStorage,
+    comparison: Comparison,
+    tile_cache_dir: Path | None = None,
+) -> None:
+    """`tile_cache_dir`: the disk tile cache its map tiles are removed from."""
     files = _files_of(session, Product.comparison_id == comparison.id)
     session.execute(delete(Comparison).where(Comparison.id == comparison.id))
-    _remove(session, storage, files, [comparison_folder(comparison.id)])
+    _remove(
+        session, storage, files, [comparison_folder(comparison.id)],
+        tile_cache_dir, [group_name("comparisons", comparison.id)],
+    )  # fmt: skip
 
 
-def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> None:
+def delete_survey(
+    session: Session, storage: LocalStorage, survey: Survey, tile_cache_dir: Path | None = None
+) -> None:
     users = session.scalars(
         select(Comparison.id).where(
             or_(Comparison.pre_survey_id == survey.id, Comparison.post_survey_id == survey.id)
@@ -89,7 +111,7 @@ def delete_survey(session: Session, storage: LocalStorage, survey: Survey) -> No
     for upload in unfinished:
         session.delete(upload)
     session.execute(delete(Survey).where(Survey.id == survey.id))
-    _remove(session, storage, files, [folder])
+    _remove(session, storage, files, [folder], tile_cache_dir, [group_name("surveys", survey.id)])
     for part in parts:
         storage.delete(part)
 
@@ -105,7 +127,9 @@ def _unfinished_uploads_of(session: Session, survey: Survey) -> list[Upload]:
     return [u for u in uploads if (u.details or {}).get("survey_id") == survey.id]
 
 
-def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
+def delete_site(
+    session: Session, storage: LocalStorage, site: Site, tile_cache_dir: Path | None = None
+) -> None:
     comparison_ids = session.scalars(
         select(Comparison.id).where(Comparison.site_id == site.id)
     ).all()
@@ -115,7 +139,9 @@ def delete_site(session: Session, storage: LocalStorage, site: Site) -> None:
     files += _report_files_of(session, site.id)
     folders = [comparison_folder(c) for c in comparison_ids]
     folders += [survey_folder(site.id, s.id) for s in site.surveys]
+    groups = [group_name("comparisons", c) for c in comparison_ids]
+    groups += [group_name("surveys", s.id) for s in site.surveys]
     # Unfinished resumable uploads (services/uploads.py): no row points at their bytes.
     folders.append(site_uploads_folder(site.id))
     session.execute(delete(Site).where(Site.id == site.id))
-    _remove(session, storage, files, folders)
+    _remove(session, storage, files, folders, tile_cache_dir, groups)

@@ -12,15 +12,22 @@ in `If-None-Match` gets 304 without the tile being rendered or looked up.
 
 Two levels, both LRU and bounded in bytes: the memory of each API process
 (SLIDEWATCH_TILE_CACHE_BYTES) and, shared by all the API's processes (which would otherwise
-each render every tile once) and kept across restarts, a folder of PNG files
+each render every tile once), the workers that render a product's tiles before anyone asks
+(backend/services/tile_prerender.py) and kept across restarts, a folder of PNG files
 (SLIDEWATCH_TILE_DISK_CACHE_BYTES, under the data directory), written atomically and pruned
 of the files read longest ago once it outgrows its bound.
+
+On disk a tile lies in the folder of its group (the survey or comparison whose look it
+shows: `comparisons-12`) and of its file's identity, so that deleting a survey or a
+comparison removes its tiles at once (`forget_groups`), and a product replaced by a new
+file leaves no tiles of the old one behind (`keep_only`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import tempfile
 import threading
 from collections import OrderedDict
@@ -29,7 +36,7 @@ from pathlib import Path
 
 # Bump when the same file and style render differently (colours, encoding, resampling),
 # so that caches and browsers do not keep tiles of the old code.
-RENDER_VERSION = 2
+RENDER_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,9 @@ class TileKey:
     y: int
     rescale: tuple[float, float] | None
     colormap: str | None
+    # The survey or comparison whose look the tile shows ("comparisons/12"): its tiles on
+    # disk go with it.
+    group: str = ""
 
     @property
     def etag(self) -> str:
@@ -147,8 +157,18 @@ class TileCache:
         return len(self._tiles)
 
 
+def group_name(owner: str, owner_id: int) -> str:
+    """The group of the tiles of a survey's or a comparison's layers ("surveys", 3)."""
+    return f"{owner}/{owner_id}"
+
+
+def _identity_name(identity: FileIdentity) -> str:
+    return hashlib.blake2b(repr(identity).encode(), digest_size=8).hexdigest()
+
+
 class DiskTileCache:
-    """PNG files named by their tile's ETag in `folder`, shared by processes.
+    """PNG files named by their tile's ETag in `folder`, shared by processes:
+    `folder/<group>/<file identity>/<etag>.png`.
 
     A hit touches the file's modification time, so that pruning, which removes the files
     touched longest ago until the folder is back under 90 % of `max_bytes`, keeps the tiles
@@ -163,12 +183,18 @@ class DiskTileCache:
         self._pruned_once = False
         self._lock = threading.Lock()
 
-    def _path(self, key: TileKey) -> Path:
+    def _group_folder(self, group: str) -> Path:
+        return self.folder / (group.replace("/", "-") or "other")
+
+    def path(self, key: TileKey) -> Path:
         name = key.etag.strip('"')
-        return self.folder / name[:2] / f"{name}.png"
+        return self._group_folder(key.group) / _identity_name(key.file) / f"{name}.png"
+
+    def contains(self, key: TileKey) -> bool:
+        return self.path(key).is_file()
 
     def get(self, key: TileKey) -> bytes | None:
-        path = self._path(key)
+        path = self.path(key)
         try:
             png = path.read_bytes()
             os.utime(path)
@@ -179,7 +205,7 @@ class DiskTileCache:
     def put(self, key: TileKey, png: bytes) -> None:
         if len(png) > self.max_bytes:
             return
-        path = self._path(key)
+        path = self.path(key)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # Written beside its place and renamed: a reader never sees half a tile.
@@ -197,10 +223,30 @@ class DiskTileCache:
         if due:
             self.prune()
 
+    def forget_groups(self, groups: list[str]) -> None:
+        """Remove every tile of `groups` (their survey or comparison is gone)."""
+        for group in groups:
+            shutil.rmtree(self._group_folder(group), ignore_errors=True)
+
+    def keep_only(self, group: str, identities: set[FileIdentity]) -> int:
+        """Remove the tiles of `group` made from files other than `identities` (products
+        replaced by new files, or no longer there); how many folders went."""
+        keep = {_identity_name(identity) for identity in identities}
+        removed = 0
+        try:
+            folders = list(self._group_folder(group).iterdir())
+        except OSError:
+            return 0
+        for folder in folders:
+            if folder.name not in keep:
+                shutil.rmtree(folder, ignore_errors=True)
+                removed += 1
+        return removed
+
     def prune(self) -> None:
         files = []
         total = 0
-        for path in self.folder.glob("*/*"):
+        for path in self.folder.glob("*/*/*.png"):
             try:
                 stat = path.stat()
             except OSError:
@@ -215,3 +261,8 @@ class DiskTileCache:
                 break
             path.unlink(missing_ok=True)
             total -= size
+
+
+def forget_tiles(folder: Path, groups: list[str]) -> None:
+    """Remove the cached tiles of `groups` from the disk cache in `folder`."""
+    DiskTileCache(folder, 0).forget_groups(groups)

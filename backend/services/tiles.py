@@ -45,7 +45,7 @@ from rio_tiler.models import ImageData
 from scipy import ndimage
 
 from backend.geotiff import NotGeoTiff, is_geotiff, open_geotiff
-from backend.services.tile_cache import FileIdentity, file_identity
+from backend.services.tile_cache import FileIdentity, TileKey, file_identity
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 WEB_MERCATOR = CRS.from_epsg(3857)
@@ -112,11 +112,36 @@ class LayerInfo:
     maxzoom: int
 
 
+class _StatsMemo:
+    """The last files' stats, readable without reading the file (on the event loop)."""
+
+    def __init__(self, max_files: int = 256) -> None:
+        self.max_files = max_files
+        self._stats: OrderedDict[tuple[FileIdentity, int], RasterStats] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def peek(self, identity: FileIdentity, max_read_pixels: int) -> RasterStats | None:
+        with self._lock:
+            return self._stats.get((identity, max_read_pixels))
+
+    def get(self, identity: FileIdentity, max_read_pixels: int) -> RasterStats:
+        stats = self.peek(identity, max_read_pixels)
+        if stats is None:
+            stats = _raster_stats(identity, max_read_pixels)
+            with self._lock:
+                self._stats[(identity, max_read_pixels)] = stats
+                while len(self._stats) > self.max_files:
+                    self._stats.popitem(last=False)
+        return stats
+
+
+_STATS = _StatsMemo()
+
+
 def raster_stats(path: Path, max_read_pixels: int = DEFAULT_MAX_READ_PIXELS) -> RasterStats:
-    return _raster_stats(file_identity(path), max_read_pixels)
+    return _STATS.get(file_identity(path), max_read_pixels)
 
 
-@lru_cache(maxsize=256)
 def _raster_stats(identity: FileIdentity, max_read_pixels: int) -> RasterStats:
     """Percentiles from a decimated read (the COG's overviews make it cheap). A file
     without overviews would be decoded whole for that: then the percentiles come from the
@@ -171,15 +196,66 @@ def check_colormap(name: str | None) -> str | None:
     return name
 
 
+def nice_ceil(value: float) -> float:
+    """The smallest of 1, 2, 2.5, 5 x a power of ten not below `value` (as the page's
+    legends round)."""
+    power = 10.0 ** math.floor(math.log10(value))
+    for step in (1, 2, 2.5, 5, 10):
+        if value <= step * power + 1e-9:
+            return step * power
+    return 10 * power
+
+
+def _default_rescale(spec: LayerSpec, stats: RasterStats) -> tuple[float, float]:
+    """The stretch drawn when none is asked for, as TileJSON announces it: to the mm, and
+    Δh's a round extent around zero, which are the numbers the page asks for again
+    (`?rescale=`), so that its tiles and a GIS's are the same tiles (one cache entry)."""
+    if spec.style == LayerStyle.difference:
+        extent = round(nice_ceil(max(stats.max_abs, 0.01)), 3)
+        return -extent, extent  # zero change sits in the middle
+    if stats.p98 <= stats.p2:
+        return round(stats.p2 - 0.5, 3), round(stats.p2 + 0.5, 3)
+    return round(stats.p2, 3), round(stats.p98, 3)
+
+
 def default_rescale(
     spec: LayerSpec, path: Path, max_read_pixels: int = DEFAULT_MAX_READ_PIXELS
 ) -> tuple[float, float]:
-    stats = raster_stats(path, max_read_pixels)
-    if spec.style == LayerStyle.difference:
-        return -stats.max_abs, stats.max_abs  # zero change sits in the middle
-    if stats.p98 <= stats.p2:
-        return stats.p2 - 0.5, stats.p2 + 0.5
-    return stats.p2, stats.p98
+    return _default_rescale(spec, raster_stats(path, max_read_pixels))
+
+
+def known_default_rescale(
+    spec: LayerSpec, identity: FileIdentity, max_read_pixels: int = DEFAULT_MAX_READ_PIXELS
+) -> tuple[float, float] | None:
+    """`default_rescale` if this process knows the file's stats already (no file read),
+    else None."""
+    stats = _STATS.peek(identity, max_read_pixels)
+    return None if stats is None else _default_rescale(spec, stats)
+
+
+def stretched(spec: LayerSpec) -> bool:
+    """Whether the layer's colours come from a stretch (a default one if none is asked)."""
+    return spec.style in (LayerStyle.elevation, LayerStyle.difference)
+
+
+def tile_key(
+    identity: FileIdentity,
+    spec: LayerSpec,
+    z: int,
+    x: int,
+    y: int,
+    rescale: tuple[float, float] | None,
+    colormap: str | None,
+    group: str,
+    shift_m: tuple[float, float] | None = None,
+) -> TileKey:
+    """The cache key of a tile, the same wherever it is rendered (an API request, a worker
+    rendering ahead): `rescale` is the stretch drawn (the default one resolved), so a
+    request naming the default stretch and one naming none share their tile."""
+    style = f"{spec.name}/{spec.style}"
+    if shift_m:
+        style += f"@{shift_m[0]:.3f},{shift_m[1]:.3f}"  # a moved tile is another tile
+    return TileKey(identity, style, z, x, y, rescale, colormap, group)
 
 
 def _pixel_size_m(z: int, y: int) -> float:
@@ -465,7 +541,7 @@ def _image_tile(
                 resampling_method="bilinear",
                 reproject_method="bilinear",
             )
-    return img.render(img_format="PNG")
+    return encode_rgba_png(img)
 
 
 # zlib level of the tiles' PNGs: level 1 takes a fraction of the time of GDAL's default 6
@@ -522,6 +598,21 @@ def encode_png(img: ImageData, colormap: str | None) -> bytes:
     if (alpha < 255).any():
         options["transparency"] = alpha.tobytes()
     image.save(out, "PNG", **options)
+    return out.getvalue()
+
+
+def encode_rgba_png(img: ImageData) -> bytes:
+    """The PNG of a colour tile (RGB, its mask as the alpha), as rio-tiler's `render`
+    draws it but encoded by Pillow at a low zlib level (GDAL's level 6 took most of an
+    orthophoto tile's time)."""
+    array = img.array
+    if array.dtype != np.uint8 or array.shape[0] != 3:
+        return img.render(img_format="PNG")
+    rgba = np.empty((*array.shape[1:], 4), dtype=np.uint8)
+    rgba[..., :3] = np.moveaxis(array.data, 0, -1)
+    rgba[..., 3] = img.mask
+    out = io.BytesIO()
+    Image.fromarray(rgba, "RGBA").save(out, "PNG", compress_level=PNG_COMPRESS_LEVEL)
     return out.getvalue()
 
 

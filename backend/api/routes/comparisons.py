@@ -3,7 +3,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
 from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
-from backend.api.deps import CeleryDep, SessionDep, StorageDep, owned_by_site
+from backend.api.deps import CeleryDep, SessionDep, SettingsDep, StorageDep, owned_by_site
 from backend.api.schemas import (
     ComparisonCreate,
     ComparisonCreated,
@@ -157,9 +157,10 @@ def remove_comparison(
     site: SiteManager,
     session: SessionDep,
     storage: StorageDep,
+    settings: SettingsDep,
     token: SignedIn,
 ) -> Response:
     comparison = comparison_of_site(session, site, comparison_id)
     record(session, token, "comparison.delete", site=site, target=f"comparison {comparison.id}")
-    delete_comparison(session, storage, comparison)
+    delete_comparison(session, storage, comparison, tile_cache_dir=settings.tile_cache_dir)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

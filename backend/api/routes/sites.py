@@ -4,7 +4,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
-from backend.api.deps import SessionDep, StorageDep
+from backend.api.deps import SessionDep, SettingsDep, StorageDep
 from backend.api.routes.uploads import upload_out
 from backend.api.schemas import SiteCreate, SiteOut, SiteUpdate
 from backend.api.schemas_map import UploadOut
@@ -119,11 +119,15 @@ def update_site(body: SiteUpdate, site: SiteManager, session: SessionDep, token:
 
 @router.delete("/{site_id}", status_code=status.HTTP_204_NO_CONTENT)
 def remove_site(
-    site: SiteManager, session: SessionDep, storage: StorageDep, token: SignedIn
+    site: SiteManager,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    token: SignedIn,
 ) -> Response:
     """Delete the site with its surveys, comparisons, detections, jobs and files."""
     record(session, token, "site.delete", site=site, target=f"site {site.id} ({site.name})")
-    delete_site(session, storage, site)
+    delete_site(session, storage, site, tile_cache_dir=settings.tile_cache_dir)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 

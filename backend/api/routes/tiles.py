@@ -34,6 +34,7 @@ from backend.services.tile_cache import (
     TileKey,
     etag_matches,
     file_identity,
+    group_name,
 )
 from backend.services.tiles import (
     LAYERS,
@@ -46,9 +47,12 @@ from backend.services.tiles import (
     check_colormap,
     default_rescale,
     is_geotiff,
+    known_default_rescale,
     layer_info,
     parse_rescale,
     render_tile,
+    stretched,
+    tile_key,
     wmts_capabilities,
 )
 from backend.urls import api_url
@@ -177,7 +181,10 @@ async def _tile(
     rescale: str | None,
     colormap: str | None,
     shift_m: tuple[float, float] | None = None,
+    shift_by: str | None = None,
 ) -> Response:
+    """`shift_m`: the tile drawn moved (an orthophoto onto a comparison's pre survey);
+    `shift_by`: the group of the comparison that moves it, whose tiles it then is."""
     if not 0 <= z <= 24 or not (0 <= x < 2**z and 0 <= y < 2**z):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} does not exist")
     try:
@@ -186,10 +193,18 @@ async def _tile(
     except BadStyle as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from None
     spec = source.spec
-    style = f"{spec.name}/{spec.style}"
-    if shift_m:
-        style += f"@{shift_m[0]:.3f},{shift_m[1]:.3f}"  # a moved tile is another tile
-    key = TileKey(file_identity(source.path), style, z, x, y, stretch, name)
+    settings: Settings = request.app.state.settings
+    identity = file_identity(source.path)
+    if stretch is None and stretched(spec):
+        # The default stretch is resolved before the key: the page asks for it by its
+        # numbers, a GIS by none, and both get the one tile (rendered ahead by a worker).
+        stretch = known_default_rescale(
+            spec, identity, settings.tile_max_read_pixels
+        ) or await run_in_threadpool(
+            default_rescale, spec, source.path, settings.tile_max_read_pixels
+        )
+    group = group_name(source.owner, source.owner_id) if shift_by is None else shift_by
+    key = tile_key(identity, spec, z, x, y, stretch, name, group, shift_m)
     headers = {"Cache-Control": TILE_CACHE_CONTROL, "ETag": key.etag}
     if etag_matches(request.headers.get("if-none-match"), key.etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
@@ -199,7 +214,6 @@ async def _tile(
         png = await run_in_threadpool(cache.get_disk, key)
     if png is not None:
         return Response(png, media_type="image/png", headers={**headers, "X-Tile-Cache": "hit"})
-    settings: Settings = request.app.state.settings
     try:
         # Bounded in time as well as in pixels: a render still running when the answer
         # gives up runs on in its thread, but no longer than its bounded read takes.
@@ -302,10 +316,11 @@ async def survey_tile(
         ),
     ] = None,
 ) -> Response:
-    shift = None
-    if coregistered_by is not None:
-        shift = _coregistration_shift(session, source, coregistered_by)
-    return await _tile(request, source, z, x, y, rescale, colormap, shift)
+    if coregistered_by is None:
+        return await _tile(request, source, z, x, y, rescale, colormap)
+    shift = _coregistration_shift(session, source, coregistered_by)
+    group = group_name("comparisons", coregistered_by)
+    return await _tile(request, source, z, x, y, rescale, colormap, shift, group)
 
 
 def _coregistration_shift(
