@@ -126,6 +126,13 @@ class Settings(BaseSettings):
         description="Rendered map tiles kept on disk (DATA_DIR/cache/tiles), shared by the "
         "API's processes and kept across restarts, in bytes (0: none).",
     )
+    tile_prerender_max_tiles: int = Field(
+        default=4096,
+        ge=0,
+        description="Tiles of each map layer that a worker renders into the disk cache as "
+        "soon as a survey or comparison is ready, zoom level by level from the whole site "
+        "in (a level that would pass the bound, and finer ones, render on demand; 0: none).",
+    )
     tile_max_read_pixels: int = Field(
         default=4 * 1024**2,
         gt=0,

@@ -37,6 +37,7 @@ LAYERS = {
     "backend.wiring": "composition",
     "worker.tasks": "composition",
     "worker.tasks_monitoring": "composition",
+    "worker.tasks_tiles": "composition",
     "backend": "domain",
     "backend.db": "domain",
     "worker.jobs": "jobs",

@@ -20,9 +20,10 @@ RUN_STAGE_TASK = "slidewatch.run_stage"
 RECOVER_TASK = "slidewatch.recover_stalled_jobs"
 DELIVER_TASK = "slidewatch.deliver"
 MONITORING_TICK_TASK = "slidewatch.monitoring_tick"
+TILE_PRERENDER_TASK = "slidewatch.prerender_tiles"
 QUEUE = "slidewatch"
 # Reports and model training are jobs: their stages run as RUN_STAGE_TASK (worker.tasks).
-TASK_MODULES = ["worker.tasks", "worker.tasks_monitoring"]
+TASK_MODULES = ["worker.tasks", "worker.tasks_monitoring", "worker.tasks_tiles"]
 
 
 class QuietSweeps(logging.Filter):
@@ -88,6 +89,18 @@ def create_celery(settings: Settings) -> Celery:
     client = Celery("slidewatch", include=TASK_MODULES)
     client.config_from_object(celery_config(settings))
     return client
+
+
+_clients: dict[str, Celery] = {}
+
+
+def client_for(settings: Settings) -> Celery:
+    """A client of the settings' broker, made once per broker in this process (each keeps
+    its own connection pool)."""
+    broker_url = settings.resolved_broker_url
+    if broker_url not in _clients:
+        _clients[broker_url] = create_celery(settings)
+    return _clients[broker_url]
 
 
 def _worker_config() -> dict[str, object]:

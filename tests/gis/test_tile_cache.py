@@ -21,6 +21,7 @@ import rasterio
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from PIL import Image
+from rio_tiler.models import ImageData
 from sqlalchemy import select
 from uvicorn.protocols.http.auto import AutoHTTPProtocol
 
@@ -34,7 +35,14 @@ from backend.services.tile_cache import (
     TileKey,
     etag_matches,
 )
-from backend.services.tiles import SURVEY_LAYERS, raster_stats, tile_read_pixels
+from backend.services.tile_prerender import bounded_levels, level_tiles
+from backend.services.tiles import (
+    SURVEY_LAYERS,
+    LayerInfo,
+    encode_rgba_png,
+    raster_stats,
+    tile_read_pixels,
+)
 from tests.api_helpers import upload_dsm
 from tests.monitoring_helpers import app_for, token_for
 from worker.simulator.dsm_pair import DsmPairPaths
@@ -158,6 +166,23 @@ def test_a_replaced_product_is_rendered_anew(
     assert not np.array_equal(before, after)
 
 
+def test_the_default_stretch_asked_by_its_numbers_is_the_same_tile(
+    client: TestClient, auth: dict, layer: str
+) -> None:
+    """The page asks for the DSM in the stretch TileJSON gives (to the mm), a GIS for no
+    stretch: one tile, rendered (or rendered ahead) once."""
+    url = _tile(client, auth, layer, zoom_out=1)
+    low, high = client.get(f"{layer}/tilejson.json", headers=auth).json()["rescale"]
+    assert (round(low, 3), round(high, 3)) == (low, high) and low < high
+    plain = client.get(url, headers=auth)
+    assert plain.status_code == 200 and plain.headers["x-tile-cache"] == "miss"
+    page = client.get(f"{url}?rescale={low:.3f},{high:.3f}", headers=auth)
+    assert page.headers["x-tile-cache"] == "hit" and page.content == plain.content
+    assert page.headers["etag"] == plain.headers["etag"]
+    other = client.get(f"{url}?rescale={low:.3f},{high + 1:.3f}", headers=auth)
+    assert other.headers["x-tile-cache"] == "miss" and other.content != plain.content
+
+
 def test_a_tile_that_would_read_too_much_is_refused(
     app: FastAPI, client: TestClient, auth: dict, layer: str
 ) -> None:
@@ -228,9 +253,57 @@ def test_the_cache_is_bounded_in_bytes_and_forgets_what_was_used_longest_ago(
     disk = DiskTileCache(tmp_path / "tiles", max_bytes=1000)
     for z in range(30):
         disk.put(_key(z), bytes(100))
-    kept = sum(p.stat().st_size for p in (tmp_path / "tiles").glob("*/*"))
+    kept = sum(p.stat().st_size for p in (tmp_path / "tiles").glob("*/*/*.png"))
     assert kept <= 1000 + 100 * 2 and disk.get(_key(29)) == bytes(100)
     assert TileCache(max_bytes=0).get(_key(0)) is None
+
+
+def test_a_groups_tiles_on_disk_go_with_it_or_with_the_file_they_were_made_from(
+    tmp_path: Path,
+) -> None:
+    disk = DiskTileCache(tmp_path / "tiles", max_bytes=10_000)
+    old_file = FileIdentity("/dh.tif", 1, 2, 3, 4)
+    new_file = FileIdentity("/dh.tif", 1, 5, 3, 6)  # the same path written anew
+    keys = {
+        (file, group): TileKey(file, "dh/difference", 18, 1, 1, None, None, group)
+        for file in (old_file, new_file)
+        for group in ("comparisons/1", "comparisons/2")
+    }
+    for key in keys.values():
+        disk.put(key, b"png")
+    assert all(disk.contains(key) for key in keys.values())
+    assert disk.keep_only("comparisons/1", {new_file}) == 1
+    assert not disk.contains(keys[(old_file, "comparisons/1")])
+    assert disk.contains(keys[(new_file, "comparisons/1")])
+    assert disk.contains(keys[(old_file, "comparisons/2")])
+    disk.forget_groups(["comparisons/2"])
+    assert not disk.contains(keys[(old_file, "comparisons/2")])
+    assert not disk.contains(keys[(new_file, "comparisons/2")])
+    assert disk.get(keys[(new_file, "comparisons/1")]) == b"png"
+
+
+def test_colour_tiles_are_encoded_as_rio_tiler_draws_them() -> None:
+    rng = np.random.default_rng(3)
+    data = rng.integers(0, 256, size=(3, 256, 256), dtype=np.uint8)
+    mask = np.zeros((3, 256, 256), dtype=bool)
+    mask[:, :40, :] = True  # outside the orthophoto: transparent
+    img = ImageData(np.ma.MaskedArray(data, mask=mask))
+    ours = Image.open(io.BytesIO(encode_rgba_png(img)))
+    theirs = Image.open(io.BytesIO(img.render(img_format="PNG")))
+    assert ours.mode == "RGBA"
+    assert np.array_equal(np.asarray(ours), np.asarray(theirs.convert("RGBA")))
+    assert (np.asarray(ours)[:40, :, 3] == 0).all() and (np.asarray(ours)[40:, :, 3] == 255).all()
+
+
+def test_the_tiles_rendered_ahead_stop_at_the_level_that_would_pass_the_bound() -> None:
+    info = LayerInfo((9.0, 46.049, 9.0065, 46.0536), minzoom=16, maxzoom=21)
+    counts = [len(level_tiles(info, z)) for z in range(16, 22)]
+    assert counts == sorted(counts) and counts[-1] > 1000
+    levels = bounded_levels(info, max_tiles=sum(counts[:4]) + counts[4] - 1)
+    assert [z for z, _ in levels] == [16, 17, 18, 19]
+    assert [len(tiles) for _, tiles in levels] == counts[:4]
+    assert len(bounded_levels(info, max_tiles=sum(counts))) == 6
+    assert bounded_levels(info, max_tiles=0) == []
 
 
 def test_if_none_match_lists_and_weak_validators() -> None:

@@ -22,6 +22,7 @@ Listener = Callable[[Session, Any, Settings], Any]
 
 class JobEvent(StrEnum):
     comparison_succeeded = "comparison_succeeded"  # the listener gets the Comparison
+    survey_ready = "survey_ready"  # reconstructed; the listener gets the Survey
     job_failed = "job_failed"  # the listener gets the Job
     report_ready = "report_ready"  # the listener gets the Report
 

@@ -23,6 +23,7 @@ from sqlalchemy.orm import Session
 from backend.db.arriving_uploads import arriving_video, part_path
 from backend.db.models import Job, Survey, SurveyKind, SurveyStatus, UploadState
 from backend.storage_layout import survey_reconstruction_file, survey_reconstruction_folder
+from worker.jobs.events import JobEvent, publish
 from worker.jobs.kind import JobKindName
 from worker.jobs.products import StorageJob, drop_product, register_product
 from worker.pipeline import reconstruction as pipeline
@@ -159,6 +160,8 @@ class ReconstructionJob(StorageJob):
     def on_success(self, session: Session, job: Job) -> None:
         survey = self._survey(session, job)
         survey.status, survey.error = SurveyStatus.ready, None
+        session.flush()
+        publish(JobEvent.survey_ready, self.context.settings, session, survey)
 
     def on_failure(self, session: Session, job: Job, reason: str) -> None:
         survey = session.get(Survey, job.survey_id)

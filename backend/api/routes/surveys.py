@@ -3,6 +3,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from sqlalchemy import select
+from starlette.concurrency import run_in_threadpool
 
 from backend.api.access import SignedIn, SiteAnalyst, SiteManager, SiteViewer
 from backend.api.body_limits import streamed_upload
@@ -15,6 +16,7 @@ from backend.raster_limits import RasterLimits
 from backend.services.audit import record
 from backend.services.deletion import StillInUse, delete_survey
 from backend.services.surveys import create_dsm_survey
+from backend.services.tile_prerender import send_prerender_task
 from backend.storage import UploadTooLarge
 from worker.pipeline.errors import InputError
 
@@ -76,7 +78,7 @@ async def upload_dsm_survey(
     if captured_at.tzinfo is None:
         captured_at = captured_at.replace(tzinfo=UTC)
     try:
-        return await create_dsm_survey(
+        survey = await create_dsm_survey(
             session,
             storage,
             site,
@@ -91,6 +93,8 @@ async def upload_dsm_survey(
         raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, str(exc)) from None
     except InputError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    await run_in_threadpool(send_prerender_task, settings, "surveys", survey.id)
+    return survey
 
 
 @router.get("/{survey_id}", response_model=SurveyOut)
@@ -135,12 +139,17 @@ def update_survey(
     summary="Delete a survey with its files, products and jobs (409 while a comparison uses it)",
 )
 def remove_survey(
-    survey_id: RowId, site: SiteManager, session: SessionDep, storage: StorageDep, token: SignedIn
+    survey_id: RowId,
+    site: SiteManager,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    token: SignedIn,
 ) -> Response:
     survey = survey_of_site(session, site, survey_id)
     record(session, token, "survey.delete", site=site, target=f"survey {survey.id} ({survey.name})")
     try:
-        delete_survey(session, storage, survey)
+        delete_survey(session, storage, survey, tile_cache_dir=settings.tile_cache_dir)
     except StillInUse as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -18,6 +18,7 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from backend.api.access import SignedIn, UploadAnalyst
@@ -30,6 +31,7 @@ from backend.db.tokens import as_utc
 from backend.ids import parse_row_id
 from backend.raster_limits import RasterLimits
 from backend.services.survey_sources import uploaded_file_warnings
+from backend.services.tile_prerender import send_prerender_task
 from backend.services.uploads import (
     CHECKSUM_ALGORITHMS,
     TUS_EXTENSIONS,
@@ -187,6 +189,8 @@ async def patch(
         )
         if new_offset == upload.length:
             await complete(session, storage, upload, RasterLimits.from_settings(settings))
+            if upload.purpose == "dsm" and upload.survey_id is not None:
+                await run_in_threadpool(send_prerender_task, settings, "surveys", upload.survey_id)
     except UploadError as exc:
         return _error(exc)
     except ClientDisconnect:
