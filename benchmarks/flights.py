@@ -11,8 +11,16 @@ Flight i (seed = first seed + i) draws its conditions from its seed alone
   hillslope 60-150 m;
 - video length (default 20-30 s): the simulator flies the whole plan in that time, so it
   sets the speed (reported per flight as flown, with whether 20 m/s was not enough);
-- sensor noise (render noise sigma 0.8-3.0 levels: dim light raises it; the simulator
-  has no knob for the sun's elevation, a texture-poor field or rolling shutter);
+- sensor noise (render noise sigma 0.8-3.0 levels: dim light raises it);
+- one harder condition per block of four seeds (one flight per scenario x GNSS mode),
+  in turn: seeds 1-4 a cross pattern (the plan flown again with perpendicular lines;
+  the video is then twice the drawn length, as the path is twice as long), 5-8 low sun
+  (elevation 5-15 deg instead of 38-62: long shadows, and the light 0.45-0.7 of the
+  usual), 9-12 a texture-poor field (the ground's contrast 0.2-0.35 of the usual: mown
+  grass), 13-16 a rolling shutter (rows read over 15-35 ms), 17-20 none; then again
+  from 21. One at a time, so that a change is told by its condition, with every
+  scenario and GNSS mode under each; the values come from a stream of their own, so
+  the draws above are what they were before these conditions existed;
 - the simulation seed itself: terrain, texture, sun (azimuth, elevation 38-62 deg),
   exposure, the GNSS and attitude error realisations.
 
@@ -40,6 +48,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from dsm_truth import coregistered_error, dsm_errors, read_truth_trajectory, trajectory_errors
 
 from worker.pipeline.errors import InputError
@@ -62,6 +71,13 @@ ALTITUDE_M = {"paper-mounds": (5.0, 20.0), "hillslope": (60.0, 150.0)}
 # paper-3d climbs from its altitude to 20 m: its low end stays well below that.
 PAPER_3D_ALTITUDE_M = (5.0, 10.0)
 NOISE_SIGMA = (0.8, 3.0)
+# The harder conditions (see the module doc), one per block of four seeds in this order,
+# then a block without any; and their ranges.
+LOW_SUN_ELEVATION_DEG = (5.0, 15.0)
+LOW_SUN_LIGHT_GAIN = (0.45, 0.7)
+TEXTURE_POOR_CONTRAST = (0.2, 0.35)
+ROLLING_SHUTTER_S = (0.015, 0.035)
+CONDITIONS = ("cross", "low-sun", "texture-poor", "rolling-shutter")
 
 
 @dataclass(frozen=True)
@@ -75,9 +91,24 @@ class FlightConditions:
     altitude_m: float
     video_seconds: float
     noise_sigma: float
+    cross_pattern: bool = False
+    sun_elevation_deg: float | None = None  # None: the simulator's own draw, 38-62 deg
+    light_gain: float = 1.0
+    ground_contrast: float = 1.0
+    rolling_shutter_s: float = 0.0
+
+    def drawn(self) -> list[str]:
+        """The harder conditions (CONDITIONS) this flight has."""
+        have = {
+            "cross": self.cross_pattern,
+            "low-sun": self.sun_elevation_deg is not None,
+            "texture-poor": self.ground_contrast < 1.0,
+            "rolling-shutter": self.rolling_shutter_s > 0.0,
+        }
+        return [name for name in CONDITIONS if have[name]]
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {**asdict(self), "drawn": self.drawn()}
 
 
 @dataclass(frozen=True)
@@ -104,7 +135,7 @@ def draw_conditions(
     rng = rng_for(seed, "bench-flight-conditions")
     plan = str(rng.choice(PLANS[scenario]))
     lo, hi = PAPER_3D_ALTITUDE_M if plan == "paper-3d" else ALTITUDE_M[scenario]
-    return FlightConditions(
+    base = FlightConditions(
         seed=seed,
         scenario=scenario,
         gnss=gnss,
@@ -112,6 +143,30 @@ def draw_conditions(
         altitude_m=round(float(rng.uniform(lo, hi)), 1),
         video_seconds=round(float(rng.uniform(*video_seconds)), 1),
         noise_sigma=round(float(rng.uniform(*NOISE_SIGMA)), 2),
+    )
+    return _harder(base, rng_for(seed, "bench-flight-harder-conditions"))
+
+
+def _harder(base: FlightConditions, rng: np.random.Generator) -> FlightConditions:
+    """`base` with the harder condition of its block of seeds (see the module doc);
+    every value is drawn whatever the condition, so that they do not shift one
+    another."""
+    per_block = len(GNSS_MODES) * len(SCENARIOS)
+    block = ((base.seed - 1) // per_block) % (len(CONDITIONS) + 1)
+    on = {name: block == i for i, name in enumerate(CONDITIONS)}
+    elevation = round(float(rng.uniform(*LOW_SUN_ELEVATION_DEG)), 1)
+    gain = round(float(rng.uniform(*LOW_SUN_LIGHT_GAIN)), 2)
+    contrast = round(float(rng.uniform(*TEXTURE_POOR_CONTRAST)), 2)
+    readout = round(float(rng.uniform(*ROLLING_SHUTTER_S)), 4)
+    return replace(
+        base,
+        cross_pattern=bool(on["cross"]),
+        # The cross pattern flies the path twice: twice the video at the same speed.
+        video_seconds=base.video_seconds * 2 if on["cross"] else base.video_seconds,
+        sun_elevation_deg=elevation if on["low-sun"] else None,
+        light_gain=gain if on["low-sun"] else 1.0,
+        ground_contrast=contrast if on["texture-poor"] else 1.0,
+        rolling_shutter_s=readout if on["rolling-shutter"] else 0.0,
     )
 
 
@@ -132,6 +187,11 @@ def simulation_options(cond: FlightConditions, settings: FlightSettings) -> Simu
         write_ortho=False,
         workers=settings.render_workers,
         render=replace(RenderOptions(), noise_sigma=cond.noise_sigma),
+        cross_pattern=cond.cross_pattern,
+        sun_elevation_deg=cond.sun_elevation_deg,
+        light_gain=cond.light_gain,
+        ground_contrast=cond.ground_contrast,
+        rolling_shutter_s=cond.rolling_shutter_s,
     )
 
 
@@ -185,6 +245,8 @@ def _flown(survey: dict[str, Any]) -> dict[str, Any]:
         "line_spacing_m": flight["line_spacing_m"],
         "side_overlap": flight["plan"]["side_overlap"],
         "altitude_range_m": flight.get("altitude_range_m"),
+        "cross_grid_flown": flight.get("cross_grid_flown"),
+        "rolling_shutter": survey.get("rolling_shutter"),
         "frames": survey["frames"],
         "sun": survey.get("sun"),
         "gnss_mean_error_enu_m": survey["gnss"].get("mean_error_enu_m"),

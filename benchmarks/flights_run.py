@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from flights import SCENARIOS, FlightSettings, run_flights
-from flights_summary import TARGETS, summarize, table
+from flights_summary import TARGETS, by_condition, condition_table, summarize, table
 from reconstruction import warm_imports
 
 from worker.pipeline.atomic import write_text_atomic
@@ -58,19 +58,22 @@ def run(
     def save(records: list[dict[str, Any]]) -> None:
         report["flights"] = records
         report["summary"] = summarize(records)
+        report["by_condition"] = by_condition(records)
         report["seconds"] = round(time.perf_counter() - start, 1)
         json_path.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(json_path, json.dumps(report, indent=2))
         print(f"flight {len(records)}/{len(seeds)}: {_line(records[-1])}", flush=True)
 
     run_flights(seeds, work_dir, settings, tuple(scenarios or SCENARIOS), sfm_every, save)
-    report["table"] = table(report["summary"])
+    report["table"] = table(report["summary"]) + "\n" + condition_table(report["by_condition"])
     return report
 
 
 def _line(record: dict[str, Any]) -> str:
     c = record["conditions"]
     head = f"seed {c['seed']} {c['scenario']} {c['gnss']} {c['plan']} {c['altitude_m']} m"
+    if c.get("drawn"):
+        head += f" ({', '.join(c['drawn'])})"
     if not record["success"]:
         return f"{head}: failed ({record['slam']['failure']['message'][:100]})"
     slam = record["slam"]

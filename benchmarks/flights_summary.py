@@ -12,6 +12,11 @@ target is judged on the statistic it names:
   as georeferenced it is the GNSS error's) <= 0.5 m, judged on p90;
 - sfm / slam wall time >= 10 median (the `--sfm-every` subset);
 - real-time factor (video seconds per second of the reconstruct stage) >= 1 median.
+
+`by_condition` groups the same flights by the harder condition they drew (cross
+pattern, low sun, texture-poor field, rolling shutter, or none: flights.CONDITIONS),
+over every scenario and GNSS mode, with the same figures (no targets: the targets are
+per scenario and GNSS mode).
 """
 
 from __future__ import annotations
@@ -212,6 +217,56 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         group["targets"] = judge(group, scenario, gnss)
         out[key] = group
     return out
+
+
+# A flight without any of the harder conditions.
+NO_CONDITION = "none"
+
+
+def by_condition(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per harder condition drawn (the conditions' `drawn` list; NO_CONDITION for flights
+    without one): the group's success and figures, with the seeds it holds."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in records:
+        for name in r["conditions"].get("drawn") or [NO_CONDITION]:
+            groups.setdefault(name, []).append(r)
+    out = {}
+    for name, group in groups.items():
+        summary = summarize_group(group)
+        summary["seeds"] = [r["conditions"]["seed"] for r in group]
+        out[name] = summary
+    return out
+
+
+# The figures the per-condition table prints (the JSON has them all).
+CONDITION_FIGURES = (
+    "dsm_nmad_as_georeferenced_px",
+    "dsm_nmad_coregistered_px",
+    "completeness",
+    "trajectory_rmse_m",
+    "georef_residual_h_m",
+    "real_time_factor",
+)
+
+
+def condition_table(groups: dict[str, Any]) -> str:
+    """The printed per-condition table: success, and median / p90 / worst of the main
+    figures."""
+    lines = ["\nby condition (every scenario and GNSS mode):"]
+    for name, group in groups.items():
+        lines.append(
+            f"  {name}: seeds {_seeds(group['seeds'])}; succeeded {group['succeeded']} "
+            f"of {group['flights']}"
+        )
+        for failure in group["failures"]:
+            lines.append(f"    failed seed {failure['seed']}: {failure.get('message', '')[:160]}")
+        for failure in group["sfm"]["failures"]:
+            lines.append(f"    sfm failed seed {failure['seed']}: {failure['message'][:160]}")
+        for figure in CONDITION_FIGURES:
+            st = group["figures"][figure]
+            cells = " ".join(_cell(st[k]) for k in ("median", "p90", "worst"))
+            lines.append(f"    {figure:34s} {st['n']:3d} {cells}")
+    return "\n".join(lines)
 
 
 def table(summary: dict[str, Any]) -> str:

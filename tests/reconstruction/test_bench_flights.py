@@ -26,10 +26,54 @@ def test_conditions_come_from_the_seed_alone():
         lo, hi = flights.ALTITUDE_M[c.scenario]
         assert lo <= c.altitude_m <= hi
         assert c.plan in flights.PLANS[c.scenario]
-        assert 20.0 <= c.video_seconds <= 30.0
+        # A cross pattern flies its path twice: twice the video.
+        factor = 2.0 if c.cross_pattern else 1.0
+        assert 20.0 * factor <= c.video_seconds <= 30.0 * factor
     assert {c.plan for c in first if c.scenario == "paper-mounds"} == {"lawnmower", "paper-3d"}
-    only = flights.draw_conditions(3, scenarios=("hillslope",), video_seconds=(8.0, 8.0))
+    only = flights.draw_conditions(19, scenarios=("hillslope",), video_seconds=(8.0, 8.0))
     assert only.scenario == "hillslope" and only.video_seconds == 8.0
+
+
+def test_each_harder_condition_has_a_block_of_four_seeds_one_per_scenario_and_gnss():
+    drawn = {seed: flights.draw_conditions(seed) for seed in range(1, 41)}
+    blocks = [*flights.CONDITIONS, None]
+    for seed, c in drawn.items():
+        expected = blocks[((seed - 1) // 4) % 5]
+        assert c.drawn() == ([] if expected is None else [expected])
+        assert c.to_dict()["drawn"] == c.drawn()
+    low_sun = [c for c in drawn.values() if "low-sun" in c.drawn()]
+    assert len(low_sun) == 8 and {(c.scenario, c.gnss) for c in low_sun[:4]} == {
+        (s, g) for s in flights.SCENARIOS for g in flights.GNSS_MODES
+    }
+    for c in low_sun:
+        assert 5.0 <= c.sun_elevation_deg <= 15.0 and 0.45 <= c.light_gain <= 0.7
+    for c in drawn.values():
+        if "texture-poor" in c.drawn():
+            assert 0.2 <= c.ground_contrast <= 0.35
+        if "rolling-shutter" in c.drawn():
+            assert 0.015 <= c.rolling_shutter_s <= 0.035
+        if not c.drawn():
+            assert (c.sun_elevation_deg, c.light_gain, c.ground_contrast) == (None, 1.0, 1.0)
+            assert not c.cross_pattern and c.rolling_shutter_s == 0.0
+    # The simulation gets them.
+    sim = flights.simulation_options(drawn[13], flights.FlightSettings())
+    assert sim.rolling_shutter_s == drawn[13].rolling_shutter_s > 0
+    sim = flights.simulation_options(drawn[1], flights.FlightSettings())
+    assert sim.cross_pattern and sim.video_seconds == drawn[1].video_seconds
+
+
+def test_the_summary_groups_flights_by_condition():
+    records = [_record(seed, "rtk", float(seed), 1.0, 0.9) for seed in (1, 2, 17)]
+    records[0]["conditions"]["drawn"] = ["cross"]
+    records[1]["conditions"]["drawn"] = ["cross"]
+    records[2]["conditions"]["drawn"] = []
+    groups = flights_summary.by_condition(records)
+    assert set(groups) == {"cross", "none"}
+    assert groups["cross"]["seeds"] == [1, 2] and groups["none"]["seeds"] == [17]
+    nmad = groups["cross"]["figures"]["dsm_nmad_as_georeferenced_px"]
+    assert (nmad["n"], nmad["median"], nmad["worst"]) == (2, 1.5, 2.0)
+    text = flights_summary.condition_table(groups)
+    assert "cross: seeds 1, 2; succeeded 2 of 2" in text and "none: seeds 17" in text
 
 
 def test_rtk_flights_are_georeferenced_with_the_receivers_accuracy():
@@ -121,15 +165,20 @@ def test_a_miss_the_report_tells_is_not_silent():
 def test_one_tiny_flight_through_the_command(tmp_path):
     out = tmp_path / "flights.json"
     args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
+    # Seed 17: a block without harder conditions (a cross flight would fly twice as long).
     args += ["--scenario", "paper-mounds", "--video-seconds", "4", "--sfm-every", "0"]
+    args += ["--first-seed", "17"]
     args += ["--width", "192", "--height", "108", "--fps", "10"]
     result = CliRunner().invoke(reconstruction, args)
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     (flight,) = data["flights"]
-    assert flight["conditions"]["seed"] == 1 and flight["conditions"]["video_seconds"] == 4.0
+    assert flight["conditions"]["seed"] == 17 and flight["conditions"]["video_seconds"] == 4.0
+    assert flight["conditions"]["drawn"] == []
     assert flight["success"] or flight["slam"]["failure"]["message"]
     (key,) = data["summary"]
     assert key == "paper-mounds/standalone"
     assert f"{key}: n=1" in result.output
     assert "dsm_nmad_coregistered_px" in result.output
+    assert data["by_condition"]["none"]["seeds"] == [17]
+    assert "by condition" in result.output

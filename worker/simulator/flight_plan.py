@@ -9,6 +9,11 @@ Two plans, as in the paper:
 - `paper-3d`: the paper's registration flight: the same pattern with the height
   varying smoothly between 7 and 20 m (one-tenth scale).
 
+Either may be flown as a cross pattern (`cross`): after the last line, the aircraft
+flies straight to the start of a second lawnmower over the same rectangle with its lines
+perpendicular to the first, as surveyors fly for stronger geometry (two viewing
+directions on every point). The video length then covers both grids.
+
 `build_flight` turns a plan into a `Flight`: the aircraft takes off at the home
 point, climbs, flies to the start of the plan, turns to face its first line, flies
 the plan (the video records exactly that part, t = 0 .. duration: starting from rest,
@@ -25,7 +30,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -60,6 +65,8 @@ class FlightPlan:
     lateral_accel_m_s2: float = 4.0
     terrain_following: bool = False
     max_speed_m_s: float = 20.0
+    cross: bool = False
+    """Fly a second lawnmower perpendicular to the first after it (see the module doc)."""
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -155,6 +162,24 @@ def _lawnmower_xy(plan: FlightPlan, spacing: float, n_lines: int, step: float) -
     return np.concatenate(pts)
 
 
+def _with_cross_grid(
+    xy: np.ndarray, plan: FlightPlan, footprint_across: float, spacing: float, step: float
+) -> tuple[np.ndarray, int]:
+    """`xy` followed by a straight leg to a second lawnmower over the same rectangle
+    with lines turned by 90 degrees (its lines span `width_m`, stacked over `length_m`),
+    and the index in it where the second lawnmower starts."""
+    turned = replace(
+        plan,
+        line_azimuth_deg=plan.line_azimuth_deg + 90.0,
+        length_m=plan.width_m,
+        width_m=plan.length_m,
+    )
+    n_lines = max(1, int(np.ceil(max(turned.width_m - footprint_across, 0.0) / spacing)) + 1)
+    second = _lawnmower_xy(turned, spacing, n_lines, step)
+    leg = _densify(np.array([xy[-1], second[0]]), step)[1:-1]
+    return np.concatenate([xy, leg, second]), len(xy) + len(leg)
+
+
 def build_flight(
     plan: FlightPlan,
     camera: CameraModel,
@@ -172,6 +197,8 @@ def build_flight(
     n_lines = max(1, int(np.ceil(max(plan.width_m - footprint_across, 0.0) / spacing)) + 1)
     step = max(0.02, min(0.5, spacing / 40.0))
     xy = _lawnmower_xy(plan, spacing, n_lines, step)
+    if plan.cross:
+        xy, second_start = _with_cross_grid(xy, plan, footprint_across, spacing, step)
     seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     length = float(s[-1])
@@ -254,6 +281,9 @@ def build_flight(
     for k in range(3):
         pos[rec, k] = np.interp(s_t, s, path[:, k])
     s_end = float(s_of_t(np.array([duration]))[0])
+    if plan.cross:
+        s_second = float(s[second_start])
+        cross_flown = (s_end - s_second) / max(length - s_second, 1e-9)
     end = np.array([np.interp(s_end, s, path[:, k]) for k in range(3)])
     after = t > duration
     t_land = t[after] - duration
@@ -327,6 +357,13 @@ def build_flight(
             if kappa.max() > 0
             else None,
             "altitude_range_m": [round(float(z_rel.min()), 3), round(float(z_rel.max()), 3)],
+            # The share of the cross pattern's second grid the video covers (a plan
+            # longer than the video allows at the top speed ends before it).
+            **(
+                {"cross_grid_flown": round(float(np.clip(cross_flown, 0.0, 1.0)), 3)}
+                if plan.cross
+                else {}
+            ),
         },
     )
 

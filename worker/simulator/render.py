@@ -20,6 +20,11 @@ Each frame is rendered in three vectorised passes:
 3. Shade: the orthoimage is sampled at the hit points from a mip-map pyramid with
    per-pixel level of detail (tent-filtered between levels); vignetting and sensor
    noise are applied.
+
+With `RenderOptions.rolling_shutter_margin_px`, a frame may be given three poses (mid
+readout, first row, last row): the passes draw the mid-readout view over a field of
+view grown by the margin, and `rolling_shutter.warp_rows` makes each row from it as
+seen from its own pose, before vignetting and noise.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import numpy as np
 
 from worker.simulator.camera import CameraModel
 from worker.simulator.georef import Grid
+from worker.simulator.rolling_shutter import padded_camera, row_poses, warp_rows
 
 _REMAP_WIDTH = 2048  # remap refuses images wider or taller than 32767 pixels
 SKY_RGB = (205.0, 214.0, 224.0)
@@ -101,6 +107,10 @@ class RenderOptions:
     side_texture: bool = True
     """Give steep sides (crown walls) a texture varying with height, slightly darker."""
     """Spacing of the samples splatted along steep sides (vertical columns)."""
+    rolling_shutter_margin_px: int = 0
+    """Rolling-shutter frames: the view is drawn this many pixels wider on every side
+    (at least how far a row's pose moves the image over the readout, see
+    rolling_shutter.margin_for); 0: global shutter, one pose per frame."""
 
 
 @dataclass
@@ -159,6 +169,12 @@ class HeightFieldRenderer:
         self.options = options or RenderOptions()
         self.grid = grid
         self.camera = camera
+        # The camera the passes draw with: the output camera, grown by the margin for
+        # rolling-shutter frames.
+        margin = self.options.rolling_shutter_margin_px
+        self._view = padded_camera(camera, margin) if margin > 0 else camera
+        if margin > 0 and camera.has_distortion:
+            raise ValueError("rolling-shutter frames are drawn without lens distortion")
         self.dsm = np.ascontiguousarray(dsm, dtype=np.float32)
         self.zmin = float(self.dsm.min())
         self.zmax = float(self.dsm.max())
@@ -230,7 +246,7 @@ class HeightFieldRenderer:
         self._pyramid = levels
         self._ortho_res = grid.res / self.ortho_factor
         # Per-camera constants.
-        rays = camera.pixel_rays().reshape(-1, 3)
+        rays = self._view.pixel_rays().reshape(-1, 3)
         self._ray_x = np.ascontiguousarray(rays[:, 0])
         self._ray_y = np.ascontiguousarray(rays[:, 1])
         h, w = camera.height, camera.width
@@ -299,7 +315,7 @@ class HeightFieldRenderer:
     def _view_box(self, c: np.ndarray, d: tuple, zlo: float, zhi: float):
         """Row/col slices of the DSM that the frustum can see between heights zlo..zhi."""
         g = self.grid
-        h, w = self.camera.height, self.camera.width
+        h, w = self._view.height, self._view.width
         border = np.concatenate(
             [
                 np.arange(0, w, 16),
@@ -340,15 +356,26 @@ class HeightFieldRenderer:
         exposure: float = 1.0,
         with_geometry: bool = False,
     ) -> Frame:
-        """Render the view from `position` (local x, y, z) with rotation `r_wc`."""
+        """Render the view from `position` (local x, y, z) with rotation `r_wc`; for a
+        rolling-shutter frame (with a margin in the options), `position` (3, 3) and
+        `r_wc` (3, 3, 3) hold the poses at mid readout, first row and last row, and the
+        geometry (`with_geometry`) is that of the mid-readout view."""
         t0 = time.perf_counter()
         c0 = time.process_time()
         opt = self.options
-        cam = self.camera
+        cam = self._view
         g = self.grid
         h, w = cam.height, cam.width
         c = np.asarray(position, dtype=np.float64)
         r = np.asarray(r_wc, dtype=np.float64)
+        readout = None
+        if c.ndim == 2:
+            if opt.rolling_shutter_margin_px <= 0:
+                raise ValueError(
+                    "rolling-shutter poses need RenderOptions.rolling_shutter_margin_px"
+                )
+            readout = ((c[1], r[1]), (c[2], r[2]))
+            c, r = c[0], r[0]
         d = self._world_rays(r)  # world directions, scaled to camera z = 1
         c_cr, d_cr = self._ray_setup(c, d)
 
@@ -487,6 +514,13 @@ class HeightFieldRenderer:
         if sky.any():
             rgb[sky] = SKY_RGB
             self.stats.sky_pixels += int(sky.sum())
+        out = self.camera
+        m = opt.rolling_shutter_margin_px
+        if readout is not None:
+            rows = row_poses(*readout, out.height)
+            rgb = warp_rows(rgb, tau.reshape(h, w), cam, (c, r), rows, out, SKY_RGB)
+        elif m > 0:
+            rgb = np.ascontiguousarray(rgb[m : m + out.height, m : m + out.width])
         rgb *= self._vignette_for(exposure)
         if self._noise is not None:
             rgb += self._noise[frame_index % len(self._noise)]
@@ -504,7 +538,8 @@ class HeightFieldRenderer:
         dd = np.stack(d, axis=1).astype(np.float64)
         hit = (c[None, :] + t64[:, None] * dd).reshape(h, w, 3)
         hit[sky] = np.nan
-        return Frame(image=image, depth=tau.reshape(h, w), hit=hit)
+        inner = (slice(m, m + out.height), slice(m, m + out.width))
+        return Frame(image=image, depth=tau.reshape(h, w)[inner], hit=hit[inner])
 
     def _vignette_for(self, exposure: float) -> np.ndarray:
         """Vignetting x exposure as an (h, w, 3) factor, kept for the survey's exposure."""
@@ -526,7 +561,7 @@ class HeightFieldRenderer:
         times per cell (bilinear), so that neighbouring samples land at most
         `splat_spacing_px` apart where the block is closest. Returns the largest stride."""
         opt = self.options
-        cam = self.camera
+        cam = self._view
         g = self.grid
         h, w = cam.height, cam.width
         b = self._block
@@ -735,7 +770,7 @@ class HeightFieldRenderer:
         good[idx[ok]] = True
 
     def _to_pixels(self, xc, yc, zc):
-        cam = self.camera
+        cam = self._view
         inv = 1.0 / zc
         xn = xc * inv
         yn = yc * inv

@@ -41,6 +41,7 @@ from worker.simulator.manifest import FORMAT, Manifest
 from worker.simulator.random_slides import random_hillslope_slides
 from worker.simulator.registration import registration_patterns, shift_dsm
 from worker.simulator.render import RenderOptions
+from worker.simulator.rolling_shutter import margin_for, readout_times
 from worker.simulator.scenario import ScenarioSpec, get_scenario
 from worker.simulator.terrain import Scene
 from worker.simulator.texture import (
@@ -106,6 +107,18 @@ class SimulationOptions:
     render: RenderOptions = field(default_factory=RenderOptions)
     first_local_time: str = "2024-05-13T10:00:00"
     days_between_steps: int = 1
+    # Harder conditions, all off by default (a seed then simulates what it always did).
+    cross_pattern: bool = False
+    """Fly the plan twice, the second time with its lines perpendicular (flight_plan)."""
+    sun_elevation_deg: float | None = None
+    """The sun's elevation for every survey (low sun: long shadows); None: drawn 38-62."""
+    light_gain: float = 1.0
+    """Scales the exposure gain (low light: a dim, overcast or late survey)."""
+    ground_contrast: float = 1.0
+    """Scales the ground's texture contrast (texture-poor: mown grass, bare smooth soil)."""
+    rolling_shutter_s: float = 0.0
+    """Video rows read one after the other over this time (rolling_shutter.py); 0: a
+    global shutter. Photo sets are taken with the mechanical shutter: unaffected."""
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -133,6 +146,7 @@ def simulate_scenario(
     n_steps = opts.steps or spec.default_steps
     if n_steps < 1:
         raise ValueError("steps must be at least 1")
+    _check_conditions(opts)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scratch = Path(tempfile.mkdtemp(prefix="slidewatch-sim-"))
@@ -149,6 +163,38 @@ def simulate_scenario(
         shutil.rmtree(scratch, ignore_errors=True)
     progress(1.0)
     return manifest
+
+
+def survey_light(rng: np.random.Generator, opts: SimulationOptions) -> tuple[Sun, Exposure]:
+    """The sun and the exposure of one survey, drawn from its stream: azimuth 110-250
+    deg, elevation 38-62 deg, gain 0.93-1.07, white balance 0.97-1.03 per channel. Low
+    sun (`sun_elevation_deg`) and low light (`light_gain`) are set after the draws, so
+    that the stream gives the rest of the survey what it gave without them."""
+    sun = Sun(float(rng.uniform(110, 250)), float(rng.uniform(38, 62)))
+    exposure = Exposure(
+        gain=float(rng.uniform(0.93, 1.07)),
+        white_balance=tuple(float(x) for x in rng.uniform(0.97, 1.03, 3)),
+    )
+    if opts.sun_elevation_deg is not None:
+        sun = replace(sun, elevation_deg=float(opts.sun_elevation_deg))
+    if opts.light_gain != 1.0:
+        exposure = replace(exposure, gain=exposure.gain * opts.light_gain)
+    return sun, exposure
+
+
+def _check_conditions(opts: SimulationOptions) -> None:
+    """The harder conditions' options within what they mean."""
+    if opts.sun_elevation_deg is not None and not 0.0 < opts.sun_elevation_deg <= 90.0:
+        raise ValueError(f"sun_elevation_deg must be in (0, 90], not {opts.sun_elevation_deg}")
+    if not opts.light_gain > 0.0:
+        raise ValueError(f"light_gain must be positive, not {opts.light_gain}")
+    if not opts.ground_contrast >= 0.0:
+        raise ValueError(f"ground_contrast must be 0 or more, not {opts.ground_contrast}")
+    if not 0.0 <= opts.rolling_shutter_s < 1.0 / opts.fps:
+        raise ValueError(
+            f"rolling_shutter_s must be at least 0 and shorter than a frame "
+            f"({1.0 / opts.fps:.4f} s at {opts.fps} fps), not {opts.rolling_shutter_s}"
+        )
 
 
 def _simulate(
@@ -172,12 +218,14 @@ def _simulate(
     scene = spec.build(rng_for(opts.seed, "scene"))
     grid = scene.grid
     bank = TextureBank.make(grid.shape, grid.res, rng_for(opts.seed, "texture"))
-    base_albedo = ground_albedo(scene.material, bank, grid.res)
+    base_albedo = ground_albedo(scene.material, bank, grid.res, opts.ground_contrast)
     timings["scene"] = time.perf_counter() - t0
 
     camera = CameraModel.phantom4pro(opts.width, opts.height, kind="video")
     still = CameraModel.phantom4pro(opts.image_width, opts.image_height, kind="still")
     plan = spec.flight_plan(opts.flight, opts.altitude_m, opts.speed_m_s, opts.video_seconds)
+    if opts.cross_pattern:
+        plan = replace(plan, cross=True)
     gnss_model = named_gnss_model(opts.gnss)
     imu_model = ImuErrorModel()
     tz = timedelta(hours=spec.local_utc_offset_h)
@@ -359,11 +407,7 @@ def _simulate(
         step_rec["surveys"] = []
         for j in range(opts.flights_per_step):
             srng = rng_for(opts.seed, "survey", k, j)
-            sun = Sun(float(srng.uniform(110, 250)), float(srng.uniform(38, 62)))
-            exposure = Exposure(
-                gain=float(srng.uniform(0.93, 1.07)),
-                white_balance=tuple(float(x) for x in srng.uniform(0.97, 1.03, 3)),
-            )
+            sun, exposure = survey_light(srng, opts)
             t0 = time.perf_counter()
             ortho = orthoimage(albedo, shading(dsm, grid.res, sun), exposure)
             if j == 0 and opts.write_ortho:
@@ -533,6 +577,23 @@ def _rel(path: Path, root: Path) -> str:
     return Path(path).relative_to(root).as_posix()
 
 
+def _rolling_shutter_poses(
+    flight, scene: Scene, camera: CameraModel, times: np.ndarray, opts: SimulationOptions
+) -> tuple[np.ndarray, np.ndarray, RenderOptions]:
+    """Per frame the poses at mid readout (the frame's time), first row and last row
+    ((n, 3, 3) positions, (n, 3, 3, 3) rotations), and the render options with the
+    margin these poses need (rolling_shutter.py)."""
+    first_t, last_t = readout_times(times, opts.rolling_shutter_s)
+    mid = flight.camera_pose(times)
+    first = flight.camera_pose(first_t)
+    last = flight.camera_pose(last_t)
+    above = mid[0][:, 2] - scene.height_at(mid[0][:, 0], mid[0][:, 1])
+    margin = margin_for(camera, first, last, above)
+    positions = np.stack([mid[0], first[0], last[0]], axis=1)
+    rotations = np.stack([mid[1], first[1], last[1]], axis=1)
+    return positions, rotations, replace(opts.render, rolling_shutter_margin_px=margin)
+
+
 def _albedo(scene: Scene, canopy, base: np.ndarray, bank: TextureBank) -> np.ndarray:
     alb = base
     if scene.disturbed is not None:
@@ -620,13 +681,22 @@ def _survey(
         times = np.arange(n_frames) / opts.fps
         pos, rot = flight.camera_pose(times)
         t0 = time.perf_counter()
+        render_pos, render_rot, video_render = pos, rot, opts.render
+        if opts.rolling_shutter_s > 0:
+            render_pos, render_rot, video_render = _rolling_shutter_poses(
+                flight, scene, camera, times, opts
+            )
+            rec["rolling_shutter"] = {
+                "readout_s": opts.rolling_shutter_s,
+                "margin_px": video_render.rolling_shutter_margin_px,
+            }
         ref = pool.scene(
             f"{key}-video",
             dsm,
             scene.grid,
             ortho,
             camera,
-            opts.render,
+            video_render,
             noise_seed=zlib.crc32(key.encode()),
         )
         video_path = sdir / "DJI_0001.MP4"
@@ -648,7 +718,7 @@ def _survey(
                         cv2.imwrite(str(preview_path), img[..., ::-1])
             return vw.result
 
-        video_job = pool.submit(ref, pos, rot, encode, stats=video_run)
+        video_job = pool.submit(ref, render_pos, render_rot, encode, stats=video_run)
         t_render += time.perf_counter() - t0  # registering the scene; the rest is in job
         rec["preview"] = _rel(preview_path, out)
         rec["preview_frame"] = n_frames // 2

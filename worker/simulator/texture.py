@@ -190,8 +190,13 @@ class TextureBank:
         return cls(coarse, medium, fine, grain, leaf, disturbed)
 
 
-def ground_albedo(material: np.ndarray, bank: TextureBank, res: float) -> np.ndarray:
-    """Albedo (0..1, float32, HxWx3) of the bare ground and low vegetation."""
+def ground_albedo(
+    material: np.ndarray, bank: TextureBank, res: float, contrast: float = 1.0
+) -> np.ndarray:
+    """Albedo (0..1, float32, HxWx3) of the bare ground and low vegetation. `contrast`
+    scales every variation of the ground around its material's colour (texture, grass
+    patches, pebbles): below 1 a texture-poor field such as freshly mown grass, whose
+    local contrast in the images falls by about that factor."""
     h, w = material.shape
     out = np.zeros((h, w, 3), np.float32)
     # Grain matters only where cells are a few centimetres; at coarse resolution it
@@ -201,7 +206,7 @@ def ground_albedo(material: np.ndarray, bank: TextureBank, res: float) -> np.nda
         sel = material == mat
         if not sel.any():
             continue
-        c = _MATERIAL_CONTRAST[mat]
+        c = _MATERIAL_CONTRAST[mat] * contrast
         tex = (
             0.35 * bank.coarse[sel]
             + 0.3 * bank.medium[sel]
@@ -213,11 +218,11 @@ def ground_albedo(material: np.ndarray, bank: TextureBank, res: float) -> np.nda
         if mat == Material.GRASS:
             # Yellowish and dark patches.
             yell = np.clip(bank.medium[sel] * 0.5 + bank.coarse[sel] * 0.5, -1, 1)[:, None]
-            val = val + 0.05 * yell * np.array([0.9, 0.5, -0.1], np.float32)[None, :]
+            val = val + 0.05 * contrast * yell * np.array([0.9, 0.5, -0.1], np.float32)[None, :]
         if mat == Material.SAND:
             # Sparse darker pebbles and lighter dry grains.
             peb = bank.grain[sel] > 2.3
-            val[peb] *= 0.72
+            val[peb] *= 1.0 - 0.28 * contrast
         out[sel] = val
     return np.clip(out, 0.0, 1.0)
 
