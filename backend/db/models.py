@@ -182,6 +182,8 @@ class Site(Base):
     area_of_interest: Mapped[dict[str, Any] | None]
     # IANA time zone name: the map shows every time of the site in it.
     timezone: Mapped[str] = mapped_column(String(64), default="UTC", server_default="UTC")
+    # The language of its scheduled reports and alert e-mails (worker/reports/catalogues).
+    language: Mapped[str] = mapped_column(String(16), default="en", server_default="en")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     surveys: Mapped[list[Survey]] = relationship(back_populates="site")
@@ -464,6 +466,9 @@ class Report(Base):
         ForeignKey("comparisons.id", ondelete="SET NULL")
     )
     trigger: Mapped[str] = mapped_column(String(16))
+    # The language it is written in; None until built for a scheduled report, which
+    # takes its site's language then.
+    language: Mapped[str | None] = mapped_column(String(16))
     status: Mapped[JobState] = mapped_column(_enum(JobState, "report_status"))
     summary: Mapped[dict[str, Any] | None]
     pdf_file_id: Mapped[int | None] = mapped_column(ForeignKey("stored_files.id"))

@@ -24,7 +24,7 @@ from backend.db.stored_files import record_stored_file
 from backend.storage import LocalStorage
 from backend.storage_layout import report_file
 from worker.reports import Change, DetectionRow, ReportData
-from worker.reports.render import local_time
+from worker.reports.i18n import Catalogue, catalogue
 
 MEDIA_TYPES = {"pdf": "application/pdf", "html": "text/html; charset=utf-8"}
 FILES = {"pdf": "report.pdf", "html": "report.html"}
@@ -55,7 +55,7 @@ def latest_comparison(session: Session, site_id: int) -> Comparison | None:
     )
 
 
-def model_version(method: str, model: str | None = None) -> str:
+def model_version(method: str, model: str | None = None, words: Catalogue | None = None) -> str:
     """What made the report's figures: the software, the detection method and its model."""
 
     def of(package: str) -> str:
@@ -64,12 +64,25 @@ def model_version(method: str, model: str | None = None) -> str:
         except PackageNotFoundError:
             return "unknown"
 
-    ran = f" (model {model})" if model else ""
-    return f"slidewatch {of('slidewatch')}, detection method '{method}'{ran}, xdem {of('xdem')}"
+    words = words or catalogue()
+    made_by = {"slidewatch": of("slidewatch"), "method": method, "xdem": of("xdem")}
+    if model:
+        return words.text("report.made_by_model", model=model, **made_by)
+    return words.text("report.made_by", **made_by)
 
 
-def _survey_label(survey: Survey, timezone: str) -> str:
-    return f"survey {survey.id} '{survey.name}' ({local_time(survey.captured_at, timezone)})"
+def report_language(report: Report, site: Site) -> str:
+    """The language a report is written in: the one it was asked in, else its site's."""
+    return report.language or site.language
+
+
+def _survey_label(survey: Survey, timezone: str, words: Catalogue) -> str:
+    return words.text(
+        "report.survey",
+        survey=survey.id,
+        name=survey.name,
+        captured=words.time(survey.captured_at, timezone),
+    )
 
 
 def _processing(comparison: Comparison) -> dict[str, Any]:
@@ -96,8 +109,10 @@ def _product_path(storage: LocalStorage, comparison: Comparison, kind: str) -> P
 
 
 def gather(session: Session, storage: LocalStorage, report: Report) -> ReportData:
-    """Everything the report shows; ReportRejected when it cannot be made."""
+    """Everything the report shows, in its language; ReportRejected when it cannot be made."""
     site = session.get(Site, report.site_id)
+    language = report_language(report, site)
+    words = catalogue(language)
     comparison = (
         session.get(Comparison, report.comparison_id)
         if report.comparison_id is not None
@@ -132,8 +147,7 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
     post = comparison.post_survey
     if newest is not None and _aware(newest.captured_at) > _aware(post.captured_at):
         notes.append(
-            f"The site has a newer survey ({_survey_label(newest, site.timezone)}) that no "
-            "finished comparison covers yet: compare it to include it."
+            words.text("report.newer_survey", survey=_survey_label(newest, site.timezone, words))
         )
     data = ReportData(
         report_id=report.id,
@@ -141,8 +155,8 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         created_at=_aware(report.created_at) or utcnow(),
         trigger=report.trigger,
         comparison_id=comparison.id,
-        pre_survey=_survey_label(comparison.pre_survey, site.timezone),
-        post_survey=_survey_label(post, site.timezone),
+        pre_survey=_survey_label(comparison.pre_survey, site.timezone, words),
+        post_survey=_survey_label(post, site.timezone, words),
         dh_path=_product_path(storage, comparison, "dh"),
         dsm_path=_product_path(storage, comparison, "post_coregistered"),
         detections=rows,
@@ -152,9 +166,11 @@ def gather(session: Session, storage: LocalStorage, report: Report) -> ReportDat
         model_version=model_version(
             comparison.method,
             detection_model(comparison, (comparison.summary or {}).get("stages") or {}),
+            words,
         ),
         notes=notes,
         timezone=site.timezone,
+        language=language,
     )
     data.change = _change(session, report, comparison.id, data.totals)
     return data
@@ -195,11 +211,14 @@ def store_files(
     report: Report,
     comparison_id: int,
     totals: dict[str, Any],
+    language: str,
 ) -> None:
-    """Record the built files and the totals; idempotent (a stage stored again updates)."""
+    """Record the built files, the totals and the language they are written in; idempotent
+    (a stage stored again updates)."""
     for kind, name in FILES.items():
         relative = report_file(report.site_id, report.id, name)
         stored = record_stored_file(session, storage, relative, MEDIA_TYPES[kind])
         setattr(report, f"{kind}_file_id", stored.id)
     report.comparison_id = comparison_id
+    report.language = language
     report.summary = {"comparison_id": comparison_id, **totals}

@@ -79,7 +79,7 @@ def test_a_detection_has_one_label_everywhere_and_times_are_the_sites(
     assert report["status"] == "succeeded", report["error"]
     text = pdf_text(client.get(report["pdf_url"], headers=auth).content)
     for feature in features:
-        area = f"{feature['properties']['area_m2']:.1f}"
+        area = f"{feature['properties']['area_m2']:,.1f}"
         assert f"\n{feature['properties']['label']}\n{area}\n" in text  # a table row
     assert "Times in Asia/Tokyo." in text
     # The surveys were captured at 10:00 UTC: 19:00 in Tokyo, named as such.

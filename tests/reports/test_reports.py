@@ -44,9 +44,9 @@ def test_report_pdf_and_html_hold_the_comparison_numbers(
     assert pdf.status_code == 200 and pdf.headers["content-type"] == "application/pdf"
     text = pdf_text(pdf.content)
     assert "Landslide monitoring report: East flank" in text
-    assert f"{landslide['area_m2']:.1f}" in text
-    assert f"{landslide['volume_loss_m3']:.1f}" in text
-    assert f"{landslide['volume_gain_m3']:.1f}" in text
+    assert f"{landslide['area_m2']:,.1f}" in text
+    assert f"{landslide['volume_loss_m3']:,.1f}" in text
+    assert f"{landslide['volume_gain_m3']:,.1f}" in text
     assert f"{landslide['max_abs_dh_m']:.2f}" in text
     assert "max |Δh| (m)" in text and "Loss (m³)" in text and "Area (m²)" in text
     assert "This is the first report of the site." in text
@@ -60,7 +60,7 @@ def test_report_pdf_and_html_hold_the_comparison_numbers(
 
     html = client.get(report["html_url"], headers=auth)
     assert html.headers["content-type"].startswith("text/html")
-    assert f"{landslide['area_m2']:.1f}" in html.text and "data:image/png;base64," in html.text
+    assert f"{landslide['area_m2']:,.1f}" in html.text and "data:image/png;base64," in html.text
 
     again = _build(report_app, client, auth, ids["site"])
     text = pdf_text(client.get(again["pdf_url"], headers=auth).content)

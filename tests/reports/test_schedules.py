@@ -147,5 +147,5 @@ def test_schedule_makes_exactly_one_report_through_real_beat_and_worker(
         text = pdf_text(client.get(report["pdf_url"], headers=auth).content)
         props = landslide["properties"]
         assert "Landslide monitoring report: Scheduled slope" in text and "scheduled" in text
-        assert f"{props['area_m2']:.1f}" in text and f"{props['volume_loss_m3']:.1f}" in text
+        assert f"{props['area_m2']:,.1f}" in text and f"{props['volume_loss_m3']:,.1f}" in text
         assert f"{props['max_abs_dh_m']:.2f}" in text

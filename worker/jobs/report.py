@@ -81,14 +81,23 @@ class ReportJob(StorageJob):
             raise InputError(inputs["rejected"])
         data = data_from_json(inputs["data"])
         build_report(data, Path(inputs["out_dir"]))
-        return {"comparison_id": data.comparison_id, "totals": data.totals}
+        return {
+            "comparison_id": data.comparison_id,
+            "totals": data.totals,
+            "language": data.language,
+        }
 
     def store_stage_result(
         self, session: Session, job: Job, stage: str, result: dict[str, Any]
     ) -> None:
         report = self._report(session, job)
         reports.store_files(
-            session, self.storage, report, result["comparison_id"], result["totals"]
+            session,
+            self.storage,
+            report,
+            result["comparison_id"],
+            result["totals"],
+            result.get("language", "en"),  # a stage stored before reports had languages
         )
 
     def on_success(self, session: Session, job: Job) -> None:

@@ -42,7 +42,7 @@ class ReportData:
     created_at: datetime
     trigger: str  # schedule | on_demand
     comparison_id: int
-    pre_survey: str  # "June flight (2026-06-01 10:00 UTC)"
+    pre_survey: str  # "survey 1 'June flight' (2026-06-01 10:00 UTC)", in the report's language
     post_survey: str
     dh_path: Path  # Δh raster (metric CRS)
     dsm_path: Path  # post DSM, for the hillshade
@@ -54,6 +54,8 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     # The site's IANA time zone: every time in the report is in it, as in the page.
     timezone: str = "UTC"
+    # The language it is written in: a catalogue of worker/reports/catalogues.
+    language: str = "en"
 
     @property
     def totals(self) -> dict[str, float]:

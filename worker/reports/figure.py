@@ -19,9 +19,10 @@ from shapely.geometry import shape
 
 from worker.pipeline.atomic import atomic_path
 from worker.reports.data import DetectionRow
+from worker.reports.fonts import matplotlib_families
+from worker.reports.i18n import Catalogue, catalogue
 
 MAX_PIXELS = 1200
-FONT = "DejaVu Sans"
 
 
 def _read(path: Path) -> tuple[np.ndarray, tuple[float, float, float, float], float, object]:
@@ -54,14 +55,17 @@ def site_map(
     out_png: Path,
     title: str,
     dpi: int = 150,
+    words: Catalogue | None = None,
 ) -> Path:
-    """Write the map as a PNG (atomically); return its path."""
+    """Write the map as a PNG (atomically), its labels in `words`' language (default
+    English); return its path."""
+    words = words or catalogue()
     dh, dh_extent, _pixel, crs = _read(dh_path)
     dsm, dsm_extent, dsm_pixel, _ = _read(dsm_path)
     limit = float(np.nanpercentile(np.abs(dh), 99)) if np.isfinite(dh).any() else 1.0
     limit = max(limit, 0.1)
 
-    plt.rcParams["font.family"] = FONT
+    plt.rcParams["font.family"] = matplotlib_families()
     fig, ax = plt.subplots(figsize=(7.2, 5.6), dpi=dpi)
     ax.imshow(hillshade(dsm, dsm_pixel), cmap="gray", extent=dsm_extent, vmin=0, vmax=1)
     shown = np.ma.masked_where(~np.isfinite(dh) | (np.abs(dh) < 0.15 * limit), dh)
@@ -90,19 +94,21 @@ def site_map(
             color="black",
             fontsize=9,
             fontweight="bold",
+            fontfamily="DejaVu Sans",  # digits only; the Japanese font has no bold
             ha="center",
             va="center",
             bbox={"boxstyle": "circle,pad=0.2", "fc": "yellow", "ec": "black", "lw": 0.6},
         )
     ax.set_xlim(dh_extent[0], dh_extent[1])
     ax.set_ylim(dh_extent[2], dh_extent[3])
-    ax.set_xlabel(f"Easting (m, {crs.to_string() if crs else 'unknown CRS'})")
-    ax.set_ylabel("Northing (m)")
+    crs_name = crs.to_string() if crs else words.text("map.unknown_crs")
+    ax.set_xlabel(words.text("map.easting", crs=crs_name))
+    ax.set_ylabel(words.text("map.northing"))
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=7)
     ax.set_title(title, fontsize=10)
     bar = fig.colorbar(image, ax=ax, shrink=0.8, pad=0.02)
-    bar.set_label("Δh = post − pre (m)")
+    bar.set_label(words.text("map.dh"))
     fig.tight_layout()
     with atomic_path(Path(out_png)) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)

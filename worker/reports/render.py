@@ -1,28 +1,24 @@
-"""Render a report as PDF (reportlab) and HTML (Jinja2), with the site map figure.
+"""Render a report as PDF (reportlab) and HTML (Jinja2), with the site map figure, in the
+report's language (worker/reports/catalogues).
 
-The PDF embeds matplotlib's DejaVu Sans as a TrueType font, so "Δh", "m²", "m³", "−" and
-"|Δh|" render and can be extracted as text; no system font is needed.
+The PDF embeds DejaVu Sans, and a Japanese font for what DejaVu has no glyph for
+(worker/reports/fonts.py), so "Δh", "m²", "m³", "−", "|Δh|" and Japanese render and can be
+extracted as text.
 """
 
 from __future__ import annotations
 
 import base64
 from dataclasses import dataclass
-from datetime import UTC, datetime
-from functools import cache
 from pathlib import Path
 from typing import Any
-from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-import matplotlib
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from reportlab.lib import colors
-from reportlab.lib.enums import TA_LEFT
+from reportlab.lib.enums import TA_LEFT, TA_RIGHT
 from reportlab.lib.pagesizes import A4
 from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
-from reportlab.pdfbase import pdfmetrics
-from reportlab.pdfbase.ttfonts import TTFont
 from reportlab.platypus import (
     Image,
     Paragraph,
@@ -35,9 +31,21 @@ from reportlab.platypus import (
 from worker.pipeline.atomic import atomic_path
 from worker.reports.data import ReportData
 from worker.reports.figure import site_map
+from worker.reports.fonts import FONT, FONT_BOLD, markup, register_fonts
+from worker.reports.words import (
+    change_text,
+    created_text,
+    flatten,
+    meta_text,
+    summary_text,
+    table_header,
+    table_row,
+    words_of,
+)
 
-FONT, FONT_BOLD = "DejaVuSans", "DejaVuSans-Bold"
 TEMPLATES = Path(__file__).parent / "templates"
+# The landslide table's columns (mm): number, area, loss, gain, max |Δh|, lat, lon, score.
+COLUMN_WIDTHS_MM = (12, 21, 21, 21, 28, 22, 24, 17)
 
 
 @dataclass(frozen=True)
@@ -47,119 +55,53 @@ class ReportFiles:
     figure: Path
 
 
-@cache
-def register_fonts() -> None:
-    fonts = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
-    pdfmetrics.registerFont(TTFont(FONT, str(fonts / "DejaVuSans.ttf")))
-    pdfmetrics.registerFont(TTFont(FONT_BOLD, str(fonts / "DejaVuSans-Bold.ttf")))
-    pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD)
-
-
-def local_time(moment: datetime, timezone: str = "UTC") -> str:
-    """The time in the site's zone, named, as the page shows it: "2026-06-01 19:00 JST"."""
-    moment = moment if moment.tzinfo else moment.replace(tzinfo=UTC)
-    try:
-        zone = ZoneInfo(timezone)
-    except (ZoneInfoNotFoundError, ValueError):
-        zone = ZoneInfo("UTC")  # a report is still made; the zone is named below
-    return moment.astimezone(zone).strftime("%Y-%m-%d %H:%M %Z")
-
-
-def _flatten(values: dict[str, Any], prefix: str = "") -> list[tuple[str, str]]:
-    rows: list[tuple[str, str]] = []
-    for key, value in values.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            rows += _flatten(value, f"{name}.")
-        elif isinstance(value, float):
-            rows.append((name, f"{value:.4g}"))
-        else:
-            rows.append((name, str(value)))
-    return rows
-
-
-def change_text(data: ReportData) -> str:
-    change = data.change
-    if change is None or change.previous_report_id is None:
-        return "This is the first report of the site."
-    since = f"report {change.previous_report_id}"
-    if change.previous_created_at is not None:
-        since += f" ({local_time(change.previous_created_at, data.timezone)})"
-    if change.same_comparison:
-        return f"No new comparison since {since}: the landslides are those reported then."
-    return (
-        f"Since {since}: {change.detections:+d} "
-        f"landslide{'' if abs(change.detections) == 1 else 's'}, "
-        f"area {change.total_area_m2:+.1f} m², loss {change.total_volume_loss_m3:+.1f} m³, "
-        f"gain {change.total_volume_gain_m3:+.1f} m³."
-    )
-
-
-def _trigger(data: ReportData) -> str:
-    return "scheduled" if data.trigger == "schedule" else "on demand"
-
-
-def _summary_text(data: ReportData) -> str:
-    t = data.totals
-    plural = "" if t["detections"] == 1 else "s"
-    return (
-        f"{t['detections']} landslide{plural} detected: total area {t['total_area_m2']:.1f} m², "
-        f"loss {t['total_volume_loss_m3']:.1f} m³, gain {t['total_volume_gain_m3']:.1f} m³, "
-        f"largest |Δh| {t['max_abs_dh_m']:.2f} m."
-    )
-
-
 def render_pdf(data: ReportData, figure: Path, out_pdf: Path) -> Path:
     register_fonts()
-    body = ParagraphStyle("body", fontName=FONT, fontSize=9.5, leading=12.5, alignment=TA_LEFT)
+    words = words_of(data)
+    body = ParagraphStyle(
+        "body",
+        fontName=FONT,
+        fontSize=9.5,
+        leading=12.5,
+        alignment=TA_LEFT,
+        wordWrap=words.pdf_word_wrap,  # Japanese breaks between any two characters
+    )
     small = ParagraphStyle("small", parent=body, fontSize=8, leading=10, textColor=colors.grey)
     h1 = ParagraphStyle("h1", parent=body, fontName=FONT_BOLD, fontSize=15, leading=19)
     h2 = ParagraphStyle(
         "h2", parent=body, fontName=FONT_BOLD, fontSize=11, leading=14, spaceBefore=8
     )
     cell = ParagraphStyle("cell", parent=body, fontSize=8, leading=10)
+    head = ParagraphStyle("head", parent=cell, fontName=FONT_BOLD, alignment=TA_RIGHT)
+
+    def text(value: str, style: ParagraphStyle) -> Paragraph:
+        return Paragraph(markup(value), style)
 
     story: list[Any] = [
-        Paragraph(f"Landslide monitoring report: {_escape(data.site_name)}", h1),
-        Paragraph(
-            f"Report {data.report_id} · {local_time(data.created_at, data.timezone)} · "
-            f"{_trigger(data)} · comparison {data.comparison_id}",
-            small,
-        ),
-        Paragraph(f"Before: {_escape(data.pre_survey)}", small),
-        Paragraph(f"After: {_escape(data.post_survey)}", small),
-        Paragraph(f"Times in {_escape(data.timezone)}.", small),
+        text(words.text("report.title", site=data.site_name), h1),
+        text(meta_text(data), small),
+        text(words.text("report.before", survey=data.pre_survey), small),
+        text(words.text("report.after", survey=data.post_survey), small),
+        text(words.text("report.times_in", zone=data.timezone), small),
         Spacer(1, 4 * mm),
-        Paragraph(_summary_text(data), body),
+        text(summary_text(data), body),
     ]
-    story += [Paragraph(f"<i>{_escape(note)}</i>", body) for note in data.notes]
+    story += [Paragraph(f"<i>{markup(note)}</i>", body) for note in data.notes]
     width = A4[0] - 36 * mm
     story += [Spacer(1, 3 * mm), Image(str(figure), width=width, height=width * 5.6 / 7.2)]
 
-    story.append(Paragraph("Landslides", h2))
+    story.append(text(words.text("report.landslides"), h2))
     if data.detections:
-        header = ["#", "Area (m²)", "Loss (m³)", "Gain (m³)", "max |Δh| (m)", "Lat", "Lon", "Score"]
-        rows = [header] + [
-            [
-                str(r.number),
-                f"{r.area_m2:.1f}",
-                f"{r.volume_loss_m3:.1f}",
-                f"{r.volume_gain_m3:.1f}",
-                f"{r.max_abs_dh_m:.2f}",
-                f"{r.centroid_lat:.6f}",
-                f"{r.centroid_lon:.6f}",
-                f"{r.score:.2f}",
-            ]
-            for r in data.detections
-        ]
-        table = Table(rows, repeatRows=1)
+        rows = [[text(name, head) for name in table_header(data)]]
+        rows += [table_row(data, r) for r in data.detections]
+        table = Table(rows, colWidths=[w * mm for w in COLUMN_WIDTHS_MM], repeatRows=1)
         table.setStyle(
             TableStyle(
                 [
                     ("FONTNAME", (0, 0), (-1, -1), FONT),
-                    ("FONTNAME", (0, 0), (-1, 0), FONT_BOLD),
                     ("FONTSIZE", (0, 0), (-1, -1), 8),
                     ("ALIGN", (0, 0), (-1, -1), "RIGHT"),
+                    ("VALIGN", (0, 0), (-1, -1), "MIDDLE"),
                     ("BACKGROUND", (0, 0), (-1, 0), colors.Color(0.92, 0.92, 0.92)),
                     ("GRID", (0, 0), (-1, -1), 0.4, colors.grey),
                 ]
@@ -167,19 +109,23 @@ def render_pdf(data: ReportData, figure: Path, out_pdf: Path) -> Path:
         )
         story.append(table)
     else:
-        story.append(Paragraph("No landslide was detected.", body))
+        story.append(text(words.text("report.no_landslides"), body))
 
-    story += [Paragraph("Change since the previous report", h2), Paragraph(change_text(data), body)]
-    for title, values in (("Processing", data.processing), ("Parameters", data.parameters)):
-        story.append(Paragraph(title, h2))
-        rows = [
-            [Paragraph(_escape(k), cell), Paragraph(_escape(v), cell)] for k, v in _flatten(values)
-        ]
+    story += [text(words.text("report.change"), h2), text(change_text(data), body)]
+    for title, values in (
+        (words.text("report.processing"), data.processing),
+        (words.text("report.parameters"), data.parameters),
+    ):
+        story.append(text(title, h2))
+        rows = [[text(k, cell), text(v, cell)] for k, v in flatten(data, values)]
         if rows:
             table = Table(rows, colWidths=[70 * mm, width - 70 * mm])
             table.setStyle(TableStyle([("GRID", (0, 0), (-1, -1), 0.3, colors.lightgrey)]))
             story.append(table)
-    story += [Spacer(1, 3 * mm), Paragraph(f"Model version: {_escape(data.model_version)}", small)]
+    story += [
+        Spacer(1, 3 * mm),
+        text(words.text("report.model_version", version=data.model_version), small),
+    ]
 
     with atomic_path(Path(out_pdf)) as tmp:
         document = SimpleDocTemplate(
@@ -189,16 +135,13 @@ def render_pdf(data: ReportData, figure: Path, out_pdf: Path) -> Path:
             rightMargin=18 * mm,
             topMargin=16 * mm,
             bottomMargin=16 * mm,
-            title=f"slidewatch report {data.report_id}: {data.site_name}",
+            title=words.text("report.document_title", report=data.report_id, site=data.site_name),
             author="slidewatch",
+            lang=words.code,
             invariant=1,  # the same data gives the same bytes
         )
         document.build(story)
     return Path(out_pdf)
-
-
-def _escape(text: str) -> str:
-    return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 def render_html(data: ReportData, figure: Path, out_html: Path) -> Path:
@@ -207,13 +150,17 @@ def render_html(data: ReportData, figure: Path, out_html: Path) -> Path:
     )
     html = environment.get_template("report.html").render(
         d=data,
-        created=local_time(data.created_at, data.timezone),
-        trigger=_trigger(data),
-        totals=data.totals,
+        language=data.language,
+        t=words_of(data).text,
+        created=created_text(data),
+        meta=meta_text(data),
+        summary=summary_text(data),
+        header=table_header(data),
+        rows=[table_row(data, r) for r in data.detections],
         figure=base64.b64encode(Path(figure).read_bytes()).decode(),
         change_text=change_text(data),
-        processing=_flatten(data.processing),
-        parameters=_flatten(data.parameters),
+        processing=flatten(data, data.processing),
+        parameters=flatten(data, data.parameters),
     )
     with atomic_path(Path(out_html)) as tmp:
         tmp.write_text(html, encoding="utf-8")
@@ -229,7 +176,8 @@ def build_report(data: ReportData, out_dir: Path) -> ReportFiles:
         data.dsm_path,
         data.detections,
         out_dir / "map.png",
-        f"{data.site_name}: Δh and landslides (comparison {data.comparison_id})",
+        words_of(data).text("map.title", site=data.site_name, comparison=data.comparison_id),
+        words=words_of(data),
     )
     return ReportFiles(
         pdf=render_pdf(data, figure, out_dir / "report.pdf"),
