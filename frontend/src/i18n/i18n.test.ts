@@ -44,6 +44,8 @@ describe("the catalogues", () => {
     expect(same.sort()).toEqual(
       [
         "account.kindApi",
+        "map.dsm",
+        "map.heightDsm",
         "methods.lod",
         "survey.kindDsm",
         "unit.bytes",
