@@ -22,6 +22,7 @@ from backend.api.routes import (
     health,
     job_events,
     jobs,
+    languages,
     measurements,
     methods,
     models,
@@ -105,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         measurements,
         models,
         methods,
+        languages,
     ):
         api.include_router(module.router)
     app.include_router(api)

@@ -10,6 +10,7 @@ from backend.db.models import JobState, StageState, SurveyKind, SurveyStatus
 from backend.geojson_input import check_area_of_interest
 from backend.ids import RowId
 from worker.pipeline.detection_methods import detection_methods
+from worker.reports.i18n import DEFAULT_LANGUAGE, UnknownLanguage, check_language
 
 
 class ORMModel(BaseModel):
@@ -32,6 +33,21 @@ def check_timezone(name: str | None) -> str | None:
     return name
 
 
+def check_language_code(code: str | None) -> str | None:
+    if code is None:
+        return code
+    try:
+        return check_language(code)
+    except UnknownLanguage as exc:
+        raise ValueError(str(exc)) from None
+
+
+LANGUAGE_HELP = (
+    "The language of the site's scheduled reports and alert e-mails: a code of GET "
+    "/api/v1/languages."
+)
+
+
 class SiteCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
     organisation_id: RowId | None = Field(
@@ -46,8 +62,10 @@ class SiteCreate(BaseModel):
     timezone: str = Field(
         default="UTC", max_length=64, description="IANA time zone the map shows times in."
     )
+    language: str = Field(default=DEFAULT_LANGUAGE, max_length=16, description=LANGUAGE_HELP)
 
     _timezone = field_validator("timezone")(check_timezone)
+    _language = field_validator("language")(check_language_code)
     _area = field_validator("area_of_interest")(check_area)
 
 
@@ -56,8 +74,10 @@ class SiteUpdate(BaseModel):
     description: str | None = Field(default=None, max_length=10_000)
     area_of_interest: dict[str, Any] | None = None
     timezone: str | None = Field(default=None, max_length=64)
+    language: str | None = Field(default=None, max_length=16, description=LANGUAGE_HELP)
 
     _timezone = field_validator("timezone")(check_timezone)
+    _language = field_validator("language")(check_language_code)
     _area = field_validator("area_of_interest")(check_area)
 
 
@@ -68,7 +88,14 @@ class SiteOut(ORMModel):
     description: str
     area_of_interest: dict[str, Any] | None
     timezone: str
+    language: str
     created_at: datetime
+
+
+class LanguageOut(BaseModel):
+    code: str = Field(description='What `language` of a site or a report takes: "ja".')
+    name: str = Field(description='The language\'s name in itself: "日本語".')
+    default: bool = Field(description="What a site made without a language gets.")
 
 
 class StoredFileOut(ORMModel):

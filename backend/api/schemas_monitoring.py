@@ -5,6 +5,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from backend.api.schemas import check_language_code
 from backend.db.models import DeliveryStatus, JobState
 from backend.email_address import email_problem
 from backend.ids import RowId
@@ -166,6 +167,14 @@ class ReportCreate(BaseModel):
     comparison_id: RowId | None = Field(
         default=None, description="The comparison to report on; default: the site's latest."
     )
+    language: str | None = Field(
+        default=None,
+        max_length=16,
+        description="The language to write it in (a code of GET /api/v1/languages), e.g. the "
+        "user's; default: the site's. `?lang=` says the same.",
+    )
+
+    _language = field_validator("language")(check_language_code)
 
 
 class ReportOut(BaseModel):
@@ -175,6 +184,10 @@ class ReportOut(BaseModel):
     scheduled_for: datetime | None
     comparison_id: int | None
     trigger: str
+    language: str | None = Field(
+        description="The language it is written in; null for a scheduled report not built "
+        "yet (it takes the site's language when it is)."
+    )
     status: JobState
     job_id: int | None = Field(
         default=None, description="The job that builds it: its stage, progress and events."

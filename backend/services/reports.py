@@ -28,9 +28,14 @@ __all__ = ["ReportRejected", "queue_waiting_reports", "request_report", "shown_s
 
 
 def request_report(
-    celery: Celery, session: Session, site: Site, comparison_id: int | None
+    celery: Celery,
+    session: Session,
+    site: Site,
+    comparison_id: int | None,
+    language: str | None = None,
 ) -> Report:
-    """A queued on-demand report and its job (committed, first stage queued).
+    """A queued on-demand report and its job (committed, first stage queued), written in
+    `language` (a catalogue's code, checked by the caller), else in the site's.
 
     Nobody waits on a report at once: if the broker cannot be reached, the job stays
     queued and the recovery sweep queues it later.
@@ -46,7 +51,11 @@ def request_report(
     elif latest_comparison(session, site.id) is None:
         raise ReportRejected(f"site {site.id} has no finished comparison to report on yet")
     report = Report(
-        site_id=site.id, comparison_id=comparison_id, trigger="on_demand", status=JobState.queued
+        site_id=site.id,
+        comparison_id=comparison_id,
+        trigger="on_demand",
+        language=language or site.language,
+        status=JobState.queued,
     )
     session.add(report)
     session.flush()

@@ -102,6 +102,7 @@ PROTECTED = [
     ("GET", "/api/v1/sites/1/training-labels"),
     ("GET", "/api/v1/sites/1/comparisons/1/cells"),
     ("GET", "/api/v1/methods"),
+    ("GET", "/api/v1/languages"),
     ("GET", "/api/v1/models"),
     ("POST", "/api/v1/models/training"),
     ("GET", "/api/v1/models/training/{name}/{run}"),

@@ -4,7 +4,9 @@ A report is built by a job (kind "report"): `job_id` names it, for its stage, pr
 and event stream under `/sites/{site}/jobs/{job_id}`.
 """
 
-from fastapi import APIRouter, HTTPException, status
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, status
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 
@@ -15,6 +17,7 @@ from backend.db.models import Report, StoredFile
 from backend.ids import RowId
 from backend.services.reports import ReportRejected, request_report, shown_status
 from backend.urls import api_url
+from worker.reports.i18n import UnknownLanguage, check_language
 
 router = APIRouter(prefix="/sites/{site_id}/reports", tags=["reports"])
 
@@ -28,6 +31,7 @@ def report_out(report: Report) -> ReportOut:
         scheduled_for=report.scheduled_for,
         comparison_id=report.comparison_id,
         trigger=report.trigger,
+        language=report.language,
         status=shown_status(report),
         job_id=report.job.id if report.job else None,
         summary=report.summary,
@@ -41,12 +45,26 @@ def report_out(report: Report) -> ReportOut:
 
 @router.post("", response_model=ReportOut, status_code=status.HTTP_202_ACCEPTED)
 def create_report(
-    body: ReportCreate, site: SiteAnalyst, session: SessionDep, celery: CeleryDep
+    body: ReportCreate,
+    site: SiteAnalyst,
+    session: SessionDep,
+    celery: CeleryDep,
+    lang: Annotated[
+        str | None,
+        Query(max_length=16, description="The language to write it in, as `language` says."),
+    ] = None,
 ) -> ReportOut:
-    """Queue a report of a comparison (default: the site's latest); answers at once."""
+    """Queue a report of a comparison (default: the site's latest) in a language (default:
+    the site's); answers at once."""
+    language = body.language or lang
+    if language is not None:
+        try:
+            check_language(language)
+        except UnknownLanguage as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     try:
         # If the broker is down, the job stays queued and the recovery sweep queues it.
-        report = request_report(celery, session, site, body.comparison_id)
+        report = request_report(celery, session, site, body.comparison_id, language)
     except ReportRejected as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     return report_out(report)
