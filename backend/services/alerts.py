@@ -53,6 +53,7 @@ from backend.db.models import (
     Webhook,
 )
 from backend.outbound import UrlRefused, parse_networks, resolve_target
+from backend.services.alert_messages import email_text, subject
 from backend.signing import SIGNATURE_HEADER, TIMESTAMP_HEADER, sign
 from backend.storage import LocalStorage
 from backend.urls import api_url
@@ -161,10 +162,6 @@ def comparison_succeeded(
             features=f"/ogc/collections/detections/items?comparison_id={comparison.id}",
         ),
     }
-    subject = (
-        f"[slidewatch] {site.name}: {len(found)} landslide"
-        f"{'s' if len(found) != 1 else ''} detected (comparison {comparison.id})"
-    )
     return create_deliveries(
         session,
         settings,
@@ -172,7 +169,13 @@ def comparison_succeeded(
         "landslides_detected",
         f"comparison:{comparison.id}",
         payload,
-        subject,
+        subject(
+            site.language,
+            "landslides_detected",
+            site=site.name,
+            count=len(found),
+            comparison=comparison.id,
+        ),
     )
 
 
@@ -197,10 +200,10 @@ def job_failed(session: Session, job: Job, settings: Settings) -> list[Delivery]
         },
         "links": _links(settings, site.id, job=api_url("sites", site.id, "jobs", job.id)),
     }
-    subject = f"[slidewatch] {site.name}: {job.kind} job {job.id} failed"
+    title = subject(site.language, "job_failed", site=site.name, kind=job.kind, job=job.id)
     # A job retried and failed again is a new event: the failure time is part of the key.
     return create_deliveries(
-        session, settings, site, "job_failed", f"job:{job.id}:{failed_at}", payload, subject
+        session, settings, site, "job_failed", f"job:{job.id}:{failed_at}", payload, title
     )
 
 
@@ -222,7 +225,6 @@ def report_ready(session: Session, report: Report, settings: Settings) -> list[D
         },
         "links": _links(settings, site.id, report=api, pdf=f"{api}/pdf", html=f"{api}/html"),
     }
-    subject = f"[slidewatch] {site.name}: report {report.id}"
     return create_deliveries(
         session,
         settings,
@@ -230,7 +232,7 @@ def report_ready(session: Session, report: Report, settings: Settings) -> list[D
         "report_ready",
         f"report:{report.id}",
         payload,
-        subject,
+        subject(site.language, "report_ready", site=site.name, report=report.id),
         report=report,
     )
 
@@ -242,7 +244,7 @@ def create_deliveries(
     event_name: str,
     event_key: str,
     payload: dict[str, Any],
-    subject: str,
+    email_subject: str,
     report: Report | None = None,
 ) -> list[Delivery]:
     """One delivery per target that wants this event; queued once the session commits."""
@@ -271,7 +273,9 @@ def create_deliveries(
             report_id=report.id if report is not None else None,
             event=event_name,
             dedupe_key=key,
-            payload={**payload, "subject": subject} if channel == "email" else payload,
+            payload={**payload, **_email_extras(site, email_subject)}
+            if channel == "email"
+            else payload,
             status=DeliveryStatus.pending,
             attempts=0,
             next_attempt_at=utcnow(),
@@ -282,6 +286,12 @@ def create_deliveries(
         session.flush()
         queue_after_commit(session, settings, [d.id for d in created])
     return created
+
+
+def _email_extras(site: Site, email_subject: str) -> dict[str, str]:
+    """What an e-mail delivery keeps besides the event: its subject, and the language and
+    time zone its body is written in when sent (the site's when the event happened)."""
+    return {"subject": email_subject, "language": site.language, "timezone": site.timezone}
 
 
 class EmailUnavailable(RuntimeError):
@@ -331,7 +341,7 @@ def test_delivery(
         dedupe_key=f"test:{moment.timestamp():.6f}:{target}"[:200],
         payload=payload
         if webhook is not None
-        else {**payload, "subject": f"[slidewatch] {site.name}: test e-mail"},
+        else {**payload, **_email_extras(site, subject(site.language, "test", site=site.name))},
         status=DeliveryStatus.pending,
         attempts=0,
         next_attempt_at=moment,
@@ -550,7 +560,9 @@ def _prepare(
         return _Request(
             "webhook", delivery.id, delivery.event, body, url=webhook.url, secret=webhook.secret
         )
-    subject = payload.pop("subject", f"[slidewatch] {delivery.event}")
+    title = payload.pop("subject", f"[slidewatch] {delivery.event}")
+    # Deliveries made before e-mails had languages: English, times in UTC.
+    language, timezone = payload.pop("language", "en"), payload.pop("timezone", "UTC")
     attachment = None
     if delivery.report_id is not None:
         report = session.get(Report, delivery.report_id)
@@ -564,8 +576,8 @@ def _prepare(
         delivery.event,
         b"",
         recipients=tuple(delivery.recipients or ()),
-        subject=subject,
-        text=email_text(payload),
+        subject=title,
+        text=email_text(payload, language, timezone),
         attachment=attachment,
     )
 
@@ -612,39 +624,6 @@ def _send(settings: Settings, request: _Request) -> tuple[int | None, str | None
         code = getattr(exc, "smtp_code", None)
         return code, f"{type(exc).__name__}: {exc}"
     return None, None
-
-
-def email_text(payload: dict[str, Any]) -> str:
-    """A plain-text e-mail body from an event payload."""
-    site = payload.get("site", {})
-    lines = [f"Site: {site.get('name')} (id {site.get('id')})", ""]
-    if payload["event"] == "landslides_detected":
-        lines.append(f"Comparison {payload['comparison']['id']} found these landslides:")
-        lines.append("")
-        for d in payload["detections"]:
-            lines.append(
-                f"  Detection {d.get('label') or d['id']}: area {d['area_m2']:.1f} m², "
-                f"loss {d['volume_loss_m3']:.1f} m³, "
-                f"gain {d['volume_gain_m3']:.1f} m³, max |Δh| {d['max_abs_dh_m']:.2f} m, "
-                f"score {d['score']:.2f}, at {d['centroid']['lat']:.6f}, "
-                f"{d['centroid']['lon']:.6f}"
-            )
-    elif payload["event"] == "job_failed":
-        job = payload["job"]
-        lines.append(f"The {job['kind']} job {job['id']} failed: {job['error']}")
-    elif payload["event"] == "test":
-        lines.append(payload.get("message", "A test from slidewatch."))
-    elif payload["event"] == "report_ready":
-        report = payload["report"]
-        found = report["detections"]
-        lines.append(
-            f"Report {report['id']} is ready ({found} landslide{'' if found == 1 else 's'}); "
-            "the PDF is attached."
-        )
-    lines.append("")
-    for name, url in payload.get("links", {}).items():
-        lines.append(f"{name}: {url}")
-    return "\n".join(lines) + "\n"
 
 
 def send_email(
