@@ -9,11 +9,13 @@ import { authHeaders, getJson, putJson } from "../api";
 import { symmetricRange, unionRange } from "../colormap";
 import { cellStyle, detectionPopupHtml, detectionStyle, type HistoryEntry, historyHtml } from "../detections";
 import { escapeHtml, formatDate, formatMetres } from "../format";
+import { type MessageKey, t } from "../i18n";
 import type { Comparison, DetectionFeature, MapConfig, Product, Site, Survey, TileJson, Verdict } from "../types";
 import { correctionText } from "./alignment";
 import { differenceLegend, elevationLegend, scoreLegend } from "./legend";
 import { MeasureTool } from "./measure";
-import { swipeClips } from "./swipe";
+import { clearPopup } from "./popupClearance";
+import { type SwipeSide, sideClip, swipeClips } from "./swipe";
 import { type Owner, productTileLayer, tileJson, tileTemplate } from "./tiles";
 import { formatLatLon, formatUtm, toUtm } from "./utm";
 
@@ -71,6 +73,22 @@ const LABELS: Record<LayerKey, string> = {
 };
 
 const RASTERS: LayerKey[] = ["pre", "post", "dh"];
+/** Layers drawn over the surveys: while swiping, each on the side (or sides) chosen for it. */
+const OVERLAYS: LayerKey[] = ["dh", "detections", "cells", "footprints", "trajectories"];
+// While swiping, what the comparison found belongs with the post survey (right); the
+// outlines of what was flown belong with both.
+const DEFAULT_SIDES: Record<string, SwipeSide> = {
+  dh: "right",
+  detections: "right",
+  cells: "right",
+  footprints: "both",
+  trajectories: "both",
+};
+const SIDE_LABELS: Record<SwipeSide, MessageKey> = {
+  both: "map.swipeSideBoth",
+  left: "map.swipeSidePre",
+  right: "map.swipeSidePost",
+};
 
 export interface ShownPair {
   pre: Survey | null;
@@ -97,7 +115,7 @@ export class MapView {
   private readonly surveyLegends = document.createElement("div");
   readonly measure: MeasureTool;
   private swipeOn = false;
-  private hiddenForSwipe: LayerKey[] = [];
+  private readonly swipeSides = new Map<LayerKey, SwipeSide>(Object.entries(DEFAULT_SIDES) as [LayerKey, SwipeSide][]);
   private swipeFraction = 0.5;
   private siteBounds: L.LatLngBounds | null = null;
   private detectionLayers = new Map<number, L.Path>();
@@ -142,6 +160,10 @@ export class MapView {
     this.swipeBox = this.buildSwipe(container);
     this.renderControls();
     this.map.on("move zoom resize viewreset", () => this.applySwipe());
+    // The divider is drawn over the map's panes, popups included: it steps aside while a
+    // popup is open rather than cut through its text.
+    this.map.on("popupopen", () => this.swipeBox.classList.add("popup-open"));
+    this.map.on("popupclose", () => this.swipeBox.classList.remove("popup-open"));
     L.control.scale({ metric: true, imperial: false, position: "bottomright", maxWidth: 160 }).addTo(this.map);
     this.cursorBox = this.addControl("bottomright", "map-cursor");
     this.cursorBox.setAttribute("aria-live", "off");
@@ -203,10 +225,11 @@ export class MapView {
     const box = document.createElement("div");
     box.className = "swipe";
     box.hidden = true;
-    box.innerHTML = `<div class="swipe-line" aria-hidden="true"></div>
+    // The tags ride on the divider, each on its side of it.
+    box.innerHTML = `<div class="swipe-line" aria-hidden="true"><div class="swipe-handle"></div>
+      <span class="swipe-tag left">pre</span><span class="swipe-tag right">post</span></div>
       <label class="swipe-input"><span class="visually-hidden">Swipe position: pre survey to the left, post survey to the right</span>
-      <input type="range" min="0" max="100" step="1" value="50" id="swipe-range"></label>
-      <span class="swipe-tag left" aria-hidden="true">pre</span><span class="swipe-tag right" aria-hidden="true">post</span>`;
+      <input type="range" min="0" max="100" step="1" value="50" id="swipe-range"></label>`;
     const input = box.querySelector("input") as HTMLInputElement;
     input.addEventListener("input", () => {
       this.swipeFraction = Number(input.value) / 100;
@@ -239,21 +262,22 @@ export class MapView {
     return box;
   }
 
+  /** Pre left of the divider, post right of it, and each overlay on its chosen side: every
+   * layer's pane is clipped (CSS `clip`, in the panes' layer pixels) to its side. */
   private applySwipe(): void {
-    const pre = this.map.getPane("pre") as HTMLElement;
-    const post = this.map.getPane("post") as HTMLElement;
+    const pane = (key: LayerKey) => this.map.getPane(key) as HTMLElement;
     const line = this.swipeBox.querySelector(".swipe-line") as HTMLElement;
     if (!this.swipeOn) {
-      pre.style.clip = "";
-      post.style.clip = "";
+      for (const key of ["pre", "post", ...OVERLAYS] as LayerKey[]) pane(key).style.clip = "";
       return;
     }
     const size = this.map.getSize();
     const topLeft = this.map.containerPointToLayerPoint([0, 0]);
     const bottomRight = this.map.containerPointToLayerPoint(size);
     const clips = swipeClips(topLeft, bottomRight, this.swipeFraction);
-    pre.style.clip = clips.left;
-    post.style.clip = clips.right;
+    pane("pre").style.clip = clips.left;
+    pane("post").style.clip = clips.right;
+    for (const key of OVERLAYS) pane(key).style.clip = sideClip(this.swipeSides.get(key) ?? "both", clips);
     line.style.left = `${this.swipeFraction * 100}%`;
   }
 
@@ -263,15 +287,15 @@ export class MapView {
     if (on) {
       this.setVisible("pre", true);
       this.setVisible("post", true);
-      // Δh and the patch cells cover both sides alike: the swipe would show no difference.
-      this.hiddenForSwipe = (["dh", "cells"] as LayerKey[]).filter((key) => this.visible.get(key));
-      for (const key of this.hiddenForSwipe) this.setVisible(key, false);
-    } else {
-      for (const key of this.hiddenForSwipe) this.setVisible(key, true);
-      this.hiddenForSwipe = [];
     }
     this.applySwipe();
     this.renderControls();
+  }
+
+  /** While swiping, draw an overlay on the left (pre) side, the right (post) or both. */
+  setSwipeSide(key: LayerKey, side: SwipeSide): void {
+    this.swipeSides.set(key, side);
+    this.applySwipe();
   }
 
   /** A legend shows while one of the layers it explains is on. */
@@ -305,7 +329,7 @@ export class MapView {
           ? `<label class="opacity"><span class="visually-hidden">${escapeHtml(LABELS[key])} opacity</span>
              <input type="range" min="0" max="100" value="${Math.round((this.opacity.get(key) ?? 1) * 100)}" data-opacity="${key}" aria-label="${escapeHtml(LABELS[key])} opacity (%)"></label>`
           : "";
-        return `<div class="layer-row"><label><input type="checkbox" data-layer="${key}" ${checked}> ${escapeHtml(LABELS[key])}</label>${slider}</div>`;
+        return `<div class="layer-row"><label><input type="checkbox" data-layer="${key}" ${checked}> ${escapeHtml(LABELS[key])}</label>${slider}${this.sideChoice(key)}</div>`;
       })
       .join("");
     // Open on a laptop; folded on a narrow (tablet portrait) screen until asked for.
@@ -320,6 +344,9 @@ export class MapView {
       <button type="button" id="zoom-site">Zoom to site</button></details>`;
     this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-layer]").forEach((input) =>
       input.addEventListener("change", () => this.setVisible(input.dataset.layer as LayerKey, input.checked)),
+    );
+    this.controlsBox.querySelectorAll<HTMLSelectElement>("select[data-side]").forEach((select) =>
+      select.addEventListener("change", () => this.setSwipeSide(select.dataset.side as LayerKey, select.value as SwipeSide)),
     );
     this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-opacity]").forEach((input) =>
       input.addEventListener("input", () => this.setOpacity(input.dataset.opacity as LayerKey, Number(input.value) / 100)),
@@ -339,6 +366,17 @@ export class MapView {
     this.controlsBox.querySelectorAll<HTMLInputElement>("input[name=survey-view]").forEach((input) =>
       input.addEventListener("change", () => void this.setSurveyView(input.value as SurveyView)),
     );
+  }
+
+  /** While swiping, an overlay's row chooses the side of the divider it is drawn on. */
+  private sideChoice(key: LayerKey): string {
+    if (!this.swipeOn || !OVERLAYS.includes(key)) return "";
+    const chosen = this.swipeSides.get(key) ?? "both";
+    const options = (Object.keys(SIDE_LABELS) as SwipeSide[])
+      .map((side) => `<option value="${side}" ${side === chosen ? "selected" : ""}>${escapeHtml(t(SIDE_LABELS[side]))}</option>`)
+      .join("");
+    return `<label class="swipe-side"><span class="visually-hidden">${escapeHtml(t("map.swipeSideOf", { layer: LABELS[key] }))}</span>
+      <select data-side="${key}">${options}</select></label>`;
   }
 
   /** Show the pre and post surveys as orthophotos (where they have one) or as DSMs. */
@@ -572,12 +610,11 @@ export class MapView {
       } as L.GeoJSONOptions);
       layer.eachLayer((path) => {
         const polygon = path as L.Path;
-        polygon.bindPopup(() => detectionPopupHtml(feature.id, feature.properties, site.timezone, centreOf(polygon)), {
-          maxWidth: Math.min(320, this.map.getSize().x - 40),
-          // Scrolls rather than overflows a short (phone) map, and pans clear of its edges.
-          maxHeight: Math.max(160, this.map.getSize().y - 80),
-          autoPanPadding: [10, 10],
-        });
+        // Scrolls rather than overflows a short (phone) map, and pans clear of its controls.
+        const popup = clearPopup({ maxWidth: Math.min(320, this.map.getSize().x - 40) });
+        polygon.bindPopup(
+          popup.setContent(() => detectionPopupHtml(feature.id, feature.properties, site.timezone, centreOf(polygon))),
+        );
         polygon.on("popupopen", (event: L.PopupEvent) => this.wireVerdicts(event.popup, site, comparison, feature));
         this.detectionLayers.set(feature.id, polygon);
       });

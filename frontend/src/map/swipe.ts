@@ -14,3 +14,11 @@ export function swipeClips(topLeft: Point, bottomRight: Point, fraction: number)
   const rect = (l: number, r: number) => `rect(${topLeft.y}px, ${r}px, ${bottomRight.y}px, ${l}px)`;
   return { left: rect(topLeft.x, x), right: rect(x, bottomRight.x) };
 }
+
+/** Which side of the divider an overlay (Δh, detections, …) is drawn on while swiping. */
+export type SwipeSide = "both" | "left" | "right";
+
+/** The CSS `clip` of an overlay's pane on `side` ("" draws it on both sides). */
+export function sideClip(side: SwipeSide, clips: { left: string; right: string }): string {
+  return side === "both" ? "" : clips[side];
+}
