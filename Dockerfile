@@ -3,6 +3,7 @@ FROM python:3.11-slim-bookworm
 
 RUN apt-get update \
     && apt-get install -y --no-install-recommends libusb-1.0-0 libgl1 libegl1 libgomp1 \
+        fonts-ipaexfont-gothic \
     && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /app

@@ -4,28 +4,25 @@ character: a Japanese report, or a Japanese site name in an English one, renders
 be extracted as text.
 
 DejaVu Sans comes with matplotlib. The Japanese font is IPAex Gothic, Debian's
-fonts-ipaexfont-gothic (scripts/install-system-packages.sh installs it); both are
-TrueType, embedded as subsets. Where it is missing, reportlab's built-in HeiseiKakuGo-W5
-stands in: not embedded, so the reader's own Japanese font draws it.
+fonts-ipaexfont-gothic (scripts/install-system-packages.sh and the Dockerfile install it);
+both are TrueType, embedded as subsets. Where it is missing, a report with Japanese text
+fails at once and says so, rather than print empty boxes; one without is made as before.
 """
 
 from __future__ import annotations
 
-import logging
 from functools import cache
 from html import escape
 from pathlib import Path
 
 import matplotlib
 from reportlab.pdfbase import pdfmetrics
-from reportlab.pdfbase.cidfonts import UnicodeCIDFont
 from reportlab.pdfbase.ttfonts import TTFont
 
-log = logging.getLogger(__name__)
+from worker.pipeline.errors import InputError
 
 FONT, FONT_BOLD = "DejaVuSans", "DejaVuSans-Bold"
 JAPANESE_FONT = "IPAexGothic"
-JAPANESE_FONT_STAND_IN = "HeiseiKakuGo-W5"
 JAPANESE_FONT_FILES = (
     Path("/usr/share/fonts/opentype/ipaexfont-gothic/ipaexg.ttf"),
     Path("/usr/share/fonts/truetype/fonts-japanese-gothic.ttf"),  # Debian's alternative
@@ -33,40 +30,35 @@ JAPANESE_FONT_FILES = (
 DEJAVU_FILES = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
 
 
+class FontMissing(InputError):
+    """Text that needs the Japanese font, on a machine without it; says what to install."""
+
+
 def japanese_font_file() -> Path | None:
     return next((path for path in JAPANESE_FONT_FILES if path.is_file()), None)
 
 
 @cache
-def register_fonts() -> str:
-    """Register the PDF's fonts with reportlab (once); return the Japanese font's name."""
+def register_fonts() -> bool:
+    """Register the PDF's fonts with reportlab (once); say whether the Japanese one is."""
     pdfmetrics.registerFont(TTFont(FONT, str(DEJAVU_FILES / "DejaVuSans.ttf")))
     pdfmetrics.registerFont(TTFont(FONT_BOLD, str(DEJAVU_FILES / "DejaVuSans-Bold.ttf")))
     pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD)
     found = japanese_font_file()
-    if found is None:
-        log.warning(
-            "no Japanese font (%s): Japanese text uses %s, not embedded; install Debian's "
-            "fonts-ipaexfont-gothic",
-            JAPANESE_FONT_FILES[0],
-            JAPANESE_FONT_STAND_IN,
-        )
-        pdfmetrics.registerFont(UnicodeCIDFont(JAPANESE_FONT_STAND_IN))
-        return JAPANESE_FONT_STAND_IN
-    pdfmetrics.registerFont(TTFont(JAPANESE_FONT, str(found)))
-    return JAPANESE_FONT
+    if found is not None:
+        pdfmetrics.registerFont(TTFont(JAPANESE_FONT, str(found)))
+    return found is not None
 
 
 @cache
 def _dejavu_characters() -> frozenset[int]:
-    register_fonts()
-    return frozenset(pdfmetrics.getFont(FONT).face.charToGlyph)
+    return frozenset(TTFont(FONT, str(DEJAVU_FILES / "DejaVuSans.ttf")).face.charToGlyph)
 
 
 def markup(text: str) -> str:
     """`text` escaped for a reportlab Paragraph, each run of characters DejaVu Sans lacks
     set in the Japanese font (a font of reportlab draws only its own glyphs)."""
-    fallback = register_fonts()
+    has_japanese = register_fonts()
     has_glyph = _dejavu_characters()
     runs: list[tuple[bool, str]] = []  # (needs the Japanese font, characters)
     for character in str(text):
@@ -75,8 +67,14 @@ def markup(text: str) -> str:
             runs[-1] = (foreign, runs[-1][1] + character)
         else:
             runs.append((foreign, character))
+    if not has_japanese and any(foreign for foreign, _ in runs):
+        raise FontMissing(
+            f"the report has text DejaVu Sans cannot draw ({text!r}) and this machine has no "
+            f"Japanese font ({JAPANESE_FONT_FILES[0]}): install Debian's "
+            "fonts-ipaexfont-gothic (make install does), then run the report again"
+        )
     return "".join(
-        f'<font name="{fallback}">{escape(run, quote=False)}</font>'
+        f'<font name="{JAPANESE_FONT}">{escape(run, quote=False)}</font>'
         if foreign
         else escape(run, quote=False)
         for foreign, run in runs
