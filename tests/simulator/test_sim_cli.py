@@ -35,3 +35,9 @@ def test_bad_arguments_fail_cleanly(tmp_path):
     assert "moon" in r.output
     r = CliRunner().invoke(simulate_command, ["--help"])
     assert r.exit_code == 0 and "--video-seconds" in r.output
+    # A rolling shutter slower than a frame: refused, naming the option and the limit.
+    args = ["--scenario", "paper-mounds", "--out", str(tmp_path / "rs"), "--survey", "none"]
+    r = CliRunner().invoke(simulate_command, [*args, "--rolling-shutter", "0.05"])
+    assert r.exit_code != 0 and "rolling_shutter_s" in r.output and "0.0333" in r.output
+    r = CliRunner().invoke(simulate_command, [*args, "--sun-elevation", "0"])
+    assert r.exit_code == 2 and "--sun-elevation" in r.output

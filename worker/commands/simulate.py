@@ -108,6 +108,42 @@ EXIT_INPUT_ERROR = 2
     help="Units of the AirData CSV.",
 )
 @click.option(
+    "--cross/--no-cross",
+    "cross_pattern",
+    default=False,
+    show_default=True,
+    help="Fly the plan again with its lines perpendicular (a cross pattern).",
+)
+@click.option(
+    "--sun-elevation",
+    "sun_elevation_deg",
+    type=click.FloatRange(0, 90, min_open=True),
+    default=None,
+    help="The sun's elevation in degrees (low sun: 5-15) [default: drawn, 38-62].",
+)
+@click.option(
+    "--light-gain",
+    type=click.FloatRange(0, None, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Scales the exposure (low light: below 1).",
+)
+@click.option(
+    "--ground-contrast",
+    type=click.FloatRange(0, None),
+    default=1.0,
+    show_default=True,
+    help="Scales the ground texture's contrast (texture-poor field: below 1, e.g. 0.3).",
+)
+@click.option(
+    "--rolling-shutter",
+    "rolling_shutter_s",
+    type=click.FloatRange(0, None),
+    default=0.0,
+    show_default=True,
+    help="Video rows read over this many seconds (rolling shutter, e.g. 0.03); 0: global.",
+)
+@click.option(
     "--workers",
     type=click.IntRange(0, 64),
     default=0,
@@ -133,6 +169,11 @@ def simulate_command(
     gnss: str,
     log_time_offset_s: float,
     csv_units: str,
+    cross_pattern: bool,
+    sun_elevation_deg: float | None,
+    light_gain: float,
+    ground_contrast: float,
+    rolling_shutter_s: float,
     workers: int,
 ) -> None:
     """Simulate drone surveys of landslides with known truth."""
@@ -156,6 +197,11 @@ def simulate_command(
         log_time_offset_s=log_time_offset_s,
         csv_units=csv_units,
         workers=workers,
+        cross_pattern=cross_pattern,
+        sun_elevation_deg=sun_elevation_deg,
+        light_gain=light_gain,
+        ground_contrast=ground_contrast,
+        rolling_shutter_s=rolling_shutter_s,
     )
     t0 = time.perf_counter()
     last = [-1]
