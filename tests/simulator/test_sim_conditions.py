@@ -117,7 +117,7 @@ def test_low_sun_lengthens_the_shadows_and_low_light_darkens_the_frame():
     assert suns[1].elevation_deg == 10.0 and gains[1] == pytest.approx(0.6 * gains[0])
     reach = [_shadow_reach(f, suns[0].azimuth_deg) for f in frames]
     # The shadow of a 3 m pillar reaches 3 m / tan(elevation) beyond its sunlit side:
-    # 17.0 m at 10 deg, 1.6-2.3 m at the usual 38-62 deg. Measured from the pillar's
+    # 17.0 m at 10 deg, 1.6-3.8 m at the usual 38-62 deg. Measured from the pillar's
     # centre (up to 1.4 m from its side), to within 0.6 m.
     lengthening = 3.0 / np.tan(np.radians(10.0)) - 3.0 / np.tan(np.radians(suns[0].elevation_deg))
     assert reach[1] - reach[0] == pytest.approx(lengthening, abs=0.6)
