@@ -29,7 +29,7 @@ interface UserAccount {
 
 const ROLES = ["viewer", "analyst", "manager", "admin"];
 /** A role's name as the page says it (the API's own word in English). */
-export const roleName = (role: string) => (ROLES.includes(role) ? t(`role.${role}` as MessageKey) : role);
+const roleName = (role: string) => (ROLES.includes(role) ? t(`role.${role}` as MessageKey) : role);
 const roleOptions = (selected = "viewer") =>
   ROLES.map((r) => `<option value="${r}"${r === selected ? " selected" : ""}>${roleName(r)}</option>`).join("");
 

@@ -360,6 +360,8 @@ export const messages = {
   "site.changeTimeZone": "Change time zone",
   "site.timeZoneField": "Time zone of the site (type to search)",
   "site.saveTimeZone": "Save time zone",
+  "site.reportLanguage": "Language of reports and e-mails",
+  "site.saveSiteSettings": "Save time zone and language",
   "site.surveys": "Surveys",
   "site.compareTitle": "Compare two surveys",
   "site.pre": "Before (pre)",
