@@ -6,6 +6,8 @@ export interface Site {
   description: string;
   area_of_interest: GeoJSON.Geometry | null;
   timezone: string;
+  /** The language of its scheduled reports and alert e-mails (GET languages). */
+  language: string;
   created_at: string;
 }
 

@@ -63,6 +63,7 @@ function askName(question: string, current: string): string | null {
 
 export async function renderSite(app: HTMLElement, siteId: number, config: MapConfig): Promise<() => void> {
   const site = await getJson<Site>(`sites/${siteId}`);
+  const reportLanguages = await getJson<Array<{ code: string; name: string }>>("languages");
   app.innerHTML = `${header(`<a href="#/">${t("sites.title")}</a> <span aria-hidden="true">/</span> <span>${escapeHtml(site.name)}</span>`)}
     <main id="main" class="site-layout">
       <aside class="sidebar" aria-label="${escapeHtml(t("site.sidebar"))}">
@@ -74,7 +75,11 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
           <button type="button" id="change-timezone" aria-expanded="false">${t("site.changeTimeZone")}</button></p>
         <form id="timezone-form" class="tools" hidden>
           ${timeZoneField("timezone-input", site.timezone, t("site.timeZoneField"))}
-          <button type="submit">${t("site.saveTimeZone")}</button>
+          <label for="language-input">${t("site.reportLanguage")}</label>
+          <select id="language-input">${reportLanguages
+            .map((l) => `<option value="${escapeHtml(l.code)}" lang="${escapeHtml(l.code)}"${l.code === site.language ? " selected" : ""}>${escapeHtml(l.name)}</option>`)
+            .join("")}</select>
+          <button type="submit">${t("site.saveSiteSettings")}</button>
         </form>
         <p class="error" role="alert" id="manage-error"></p>
         <section aria-labelledby="surveys-title"><h2 id="surveys-title">${t("site.surveys")}</h2><div id="surveys"></div></section>
@@ -150,7 +155,8 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     void manage(async () => {
       const timezone = ($("timezone-input") as HTMLInputElement).value.trim();
       if (!isTimeZone(timezone)) throw new ApiError(422, t("site.notTimeZone", { zone: timezone }));
-      await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ timezone }) });
+      const language = ($("language-input") as HTMLSelectElement).value;
+      await api(`sites/${siteId}`, { method: "PATCH", body: JSON.stringify({ timezone, language }) });
       window.location.reload(); // every time on the page is shown anew in the new zone
     });
   });
