@@ -24,7 +24,8 @@ from tests.integration.conftest import SlidewatchProcess
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
 
 REPO = Path(__file__).resolve().parents[2]
-FRONTEND_DIST = REPO / "frontend" / "dist"
+# The built map: the app's own setting where given (a build made elsewhere), else frontend/dist.
+FRONTEND_DIST = Path(os.environ.get("SLIDEWATCH_FRONTEND_DIR") or REPO / "frontend" / "dist")
 ARTIFACTS = REPO / "test-artifacts" / "e2e"
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [

@@ -2,12 +2,15 @@
 job finish live, see the detections over the DSMs, swipe, open a detection and judge it;
 uploads that are cut or whose page is reloaded resume where they stopped."""
 
+import io
 import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
-from playwright.sync_api import Page, Request, Route, expect
+from PIL import Image
+from playwright.sync_api import Locator, Page, Request, Route, expect
 from pyproj import Transformer
 from shapely.geometry import Polygon
 
@@ -181,9 +184,12 @@ def test_sign_in_upload_compare_and_read_the_map(
     for label in layers.values():
         page.get_by_label(label, exact=True).set_checked(True)
 
-    # Swipe: pre on the left, post on the right, moved with the keyboard.
-    page.get_by_label("Δh (post − pre)", exact=True).set_checked(False)
+    # Swipe: pre on the left, post on the right, moved with the keyboard; what the
+    # comparison found (Δh, detections) on the post side.
     page.get_by_label("Swipe pre | post").check()
+    dh_side = page.get_by_label("Δh (post − pre): side of the divider")
+    expect(dh_side).to_have_value("right")
+    expect(page.get_by_label("Detections: side of the divider")).to_have_value("right")
     swipe = page.get_by_label(re.compile("Swipe position"))
     expect(swipe).to_be_visible()
     before = clip_right_edge(page, "pre")
@@ -196,7 +202,11 @@ def test_sign_in_upload_compare_and_read_the_map(
     for _ in range(22):  # the divider across the landslide: its scar on the post side
         page.keyboard.press("ArrowRight")
     assert clip_right_edge(page, "pre") > after
+    # The overlays are clipped where the surveys are: Δh on the post side only.
+    assert clip_right_edge(page, "dh") == clip_right_edge(page, "post")
+    assert clip_left_edge(page, "dh") == clip_right_edge(page, "pre")
     shot(page, "map-swipe", "map-swipe")
+    swipe_shows_each_side_its_overlay(page, dh_side)
     # The divider itself drags, and dragging it does not pan the map.
     line = page.locator(".swipe-line").bounding_box()
     assert line is not None
@@ -285,8 +295,8 @@ def test_sign_in_upload_compare_and_read_the_map(
     expect(result).to_contain_text("LoD (95 %)")
     shot(page, "map-measure-volume", "map-measure-volume")
 
-    # On a phone: the legend folded, a swipe slider a thumb can hold, a popup clear of the
-    # page header.
+    # On a phone: the legend folded, a swipe slider a thumb can hold, a divider a finger
+    # drags by its handle, a popup clear of the page header and of every map control.
     page.set_viewport_size({"width": 390, "height": 844})
     page.reload()
     expect(page.get_by_role("button", name="Detection 1")).to_be_visible(timeout=30_000)
@@ -296,14 +306,30 @@ def test_sign_in_upload_compare_and_read_the_map(
     slider = page.get_by_label(re.compile("Swipe position")).bounding_box()
     assert slider is not None and slider["width"] > 300, slider
     page.get_by_text("Layers", exact=True).click()
+    handle = page.locator(".swipe-handle").bounding_box()
+    assert handle is not None and min(handle["width"], handle["height"]) >= 48, handle
+    at = clip_right_edge(page, "pre")
+    touch_drag(page, handle["x"] + handle["width"] / 2, handle["y"] + handle["height"] / 2, -80)
+    assert clip_right_edge(page, "pre") == pytest.approx(at - 80, abs=6)
+    shot(page, "map-swipe-phone", "map-swipe-phone")
     page.get_by_role("button", name="Detection 1").click()
     page.wait_for_timeout(500)  # the map's pan to the popup
     popup_box = page.locator(".leaflet-popup").bounding_box()
     header = page.locator("header").first.bounding_box()
-    assert popup_box is not None and header is not None
-    # Wholly in view: below the header (where it is still on screen) and above the bottom.
+    map_box = page.locator("#map").bounding_box()
+    assert popup_box is not None and header is not None and map_box is not None
+    # Wholly in view: below the header (where it is still on screen), above the window's
+    # bottom, inside the map, and under none of the map's controls.
     assert popup_box["y"] >= max(0.0, header["y"] + header["height"]) - 1, (popup_box, header)
     assert popup_box["y"] + popup_box["height"] <= 844 + 1, popup_box
+    assert inside(popup_box, map_box), (popup_box, map_box)
+    expect(page.locator(".swipe-line")).to_be_hidden()  # steps aside while a popup is open
+    controls = page.locator(".leaflet-control, .swipe-input, .swipe-tag")
+    for index in range(controls.count()):
+        control = controls.nth(index)
+        box = control.bounding_box()
+        if box is not None and control.is_visible():
+            assert not overlap(popup_box, box), (control.get_attribute("class"), box, popup_box)
     shot(page, "map-phone", "map-phone")
     # The upload form, at the end of a long stacked page, is one tap away.
     page.get_by_role("button", name="Go to the upload form").click()
@@ -472,10 +498,89 @@ def drawn_pixels(page: Page, pane: str) -> int:
     )
 
 
-def clip_right_edge(page: Page, pane: str) -> float:
+def clip_edges(page: Page, pane: str) -> list[float]:
+    """A pane's CSS clip: top, right, bottom, left in layer pixels."""
     clip = page.locator(f".leaflet-{pane}-pane").evaluate("e => e.style.clip")
-    numbers = [float(v) for v in re.findall(r"-?[\d.]+", clip)]
-    return numbers[1]
+    return [float(v) for v in re.findall(r"-?[\d.]+", clip)]
+
+
+def clip_right_edge(page: Page, pane: str) -> float:
+    return clip_edges(page, pane)[1]
+
+
+def clip_left_edge(page: Page, pane: str) -> float:
+    return clip_edges(page, pane)[3]
+
+
+def overlap(a: dict, b: dict) -> bool:
+    """Whether two bounding boxes share more than a pixel."""
+    return (
+        min(a["x"] + a["width"], b["x"] + b["width"]) - max(a["x"], b["x"]) > 1
+        and min(a["y"] + a["height"], b["y"] + b["height"]) - max(a["y"], b["y"]) > 1
+    )
+
+
+def inside(inner: dict, outer: dict) -> bool:
+    return (
+        inner["x"] >= outer["x"] - 1
+        and inner["y"] >= outer["y"] - 1
+        and inner["x"] + inner["width"] <= outer["x"] + outer["width"] + 1
+        and inner["y"] + inner["height"] <= outer["y"] + outer["height"] + 1
+    )
+
+
+def touch_drag(page: Page, x: float, y: float, dx: float) -> None:
+    """A finger put down at (x, y) and moved dx pixels sideways, as a phone's touch screen
+    sends it (Chromium's touch input over CDP)."""
+    cdp = page.context.new_cdp_session(page)
+    cdp.send("Input.dispatchTouchEvent", {"type": "touchStart", "touchPoints": [{"x": x, "y": y}]})
+    for step in range(1, 7):
+        point = {"x": x + dx * step / 6, "y": y}
+        cdp.send("Input.dispatchTouchEvent", {"type": "touchMove", "touchPoints": [point]})
+    cdp.send("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
+    cdp.detach()
+
+
+# The map's background (#e8ebef): no layer drawn there.
+MAP_BACKGROUND = np.array([232, 235, 239])
+
+
+def drawn_share(page: Page, left: float, right: float) -> float:
+    """Share of the map's pixels between `left` and `right` (fractions of its width; rows
+    in its middle third) that differ from the bare background: where some layer shows."""
+    png = page.locator("#map").screenshot()
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    rows, cols = rgb.shape[:2]
+    band = rgb[rows // 3 : 2 * rows // 3, int(left * cols) : int(right * cols)]
+    return float((np.abs(band - MAP_BACKGROUND).max(axis=2) > 4).mean())
+
+
+def swipe_shows_each_side_its_overlay(page: Page, dh_side: Locator) -> None:
+    """With the surveys made transparent, Δh (and the detections drawn over it) shows on
+    its chosen side of the divider only: the other side is the bare background."""
+    page.locator(".map-legends summary").click()  # the legend folded: clear of the bands
+    for survey in ("Pre", "Post"):
+        page.get_by_label(f"{survey} survey opacity (%)").fill("0")
+    page.get_by_label(re.compile("Swipe position")).fill("50")
+    zoom_to_site(page)
+    page.get_by_text("Layers", exact=True).click()  # folded: clear of the raster
+    page.wait_for_timeout(800)
+    # Bands either side of the divider (at half the width), inside the site's raster.
+    left, right = drawn_share(page, 0.3, 0.45), drawn_share(page, 0.55, 0.7)
+    assert right > 0.9 and left < 0.02, (left, right)
+    page.get_by_text("Layers", exact=True).click()
+    dh_side.select_option("left")
+    page.get_by_label("Detections: side of the divider").select_option("left")
+    page.get_by_text("Layers", exact=True).click()
+    page.wait_for_timeout(300)
+    left, right = drawn_share(page, 0.3, 0.45), drawn_share(page, 0.55, 0.7)
+    assert left > 0.9 and right < 0.02, (left, right)
+    page.get_by_text("Layers", exact=True).click()
+    dh_side.select_option("right")
+    page.get_by_label("Detections: side of the divider").select_option("right")
+    for survey in ("Pre", "Post"):
+        page.get_by_label(f"{survey} survey opacity (%)").fill("100")
+    page.locator(".map-legends summary").click()
 
 
 def test_a_video_survey_is_processed_while_it_uploads(
