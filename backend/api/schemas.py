@@ -42,6 +42,13 @@ def check_language_code(code: str | None) -> str | None:
         raise ValueError(str(exc)) from None
 
 
+def check_language_given(code: str | None) -> str:
+    # Only a value sent is checked: a site keeps a language, null is no change to make.
+    if code is None:
+        raise ValueError("a site's language cannot be null: leave it out to keep it")
+    return check_language_code(code) or code
+
+
 LANGUAGE_HELP = (
     "The language of the site's scheduled reports and alert e-mails: a code of GET "
     "/api/v1/languages."
@@ -77,7 +84,7 @@ class SiteUpdate(BaseModel):
     language: str | None = Field(default=None, max_length=16, description=LANGUAGE_HELP)
 
     _timezone = field_validator("timezone")(check_timezone)
-    _language = field_validator("language")(check_language_code)
+    _language = field_validator("language")(check_language_given)
     _area = field_validator("area_of_interest")(check_area)
 
 

@@ -163,6 +163,8 @@ def test_the_language_asked_for_is_checked(
         [problem] = response.json()["detail"]
         assert problem["loc"][-1] == "language"
         assert "unknown language" in problem["msg"] and "use one of en, ja" in problem["msg"]
+    cleared = client.patch(f"/api/v1/sites/{site}", json={"language": None}, headers=auth)
+    assert cleared.status_code == 422 and "cannot be null" in cleared.text
     query = client.post(f"/api/v1/sites/{site}/reports?lang=xx", json={}, headers=auth)
     assert query.status_code == 422
     assert query.json()["detail"] == "unknown language 'xx': use one of en, ja"
