@@ -121,7 +121,7 @@ class Settings(BaseSettings):
         description="Rendered map tiles kept in memory by each API process, in bytes (0: none).",
     )
     tile_disk_cache_bytes: int = Field(
-        default=1024**3,
+        default=4 * 1024**3,
         ge=0,
         description="Rendered map tiles kept on disk (DATA_DIR/cache/tiles), shared by the "
         "API's processes and kept across restarts, in bytes (0: none).",

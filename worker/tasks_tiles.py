@@ -12,7 +12,7 @@ import time
 
 from celery import Task
 
-from backend.services.tile_prerender import describe, prerender_chunk, prerender_layers
+from backend.services.tile_prerender import describe, prerender_chunk
 from worker.celery_app import QUEUE, TILE_PRERENDER_TASK, app
 from worker.tasks import job_context
 
@@ -28,20 +28,18 @@ def prerender_tiles(self: Task, owner: str, owner_id: int, start: int = 0) -> No
     settings = context.settings
     started = time.monotonic()
     with context.session_scope() as session:
-        if start == 0:
-            layers = prerender_layers(session, context.storage, settings, owner, owner_id)
-            if layers is not None:
-                log.info("rendering tiles ahead: %s", describe(owner, owner_id, layers))
         result = prerender_chunk(session, context.storage, settings, owner, owner_id, start)
     if result.gone:
         log.info("tiles of %s %s not rendered ahead: it is gone", owner, owner_id)
         return
-    done = result.next_start if result.next_start is not None else result.total
+    if start == 0 and result.done > 0:
+        log.info("rendering tiles ahead: %s", describe(owner, owner_id, result.layers))
     log.info(
         "tiles of %s %s rendered ahead: %d of %d (%d rendered, %d already there, "
         "%d refused in %.1f s)%s",
-        owner, owner_id, done, result.total, result.rendered, result.present, result.refused,
-        time.monotonic() - started, "" if result.next_start is not None else ", done",
+        owner, owner_id, result.done, result.total, result.rendered, result.present,
+        result.refused, time.monotonic() - started,
+        "" if result.next_start is not None else ", done",
     )  # fmt: skip
     if result.next_start is not None:
         # Gave way (or used its time): the rest goes behind what was queued meanwhile.

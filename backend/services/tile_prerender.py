@@ -163,6 +163,18 @@ def prerender_layers(
     return sorted(layers, key=lambda layer: order[layer.spec.name])
 
 
+_disk_caches: dict[tuple[Path, int], DiskTileCache] = {}
+
+
+def _disk_cache(settings: Settings) -> DiskTileCache:
+    """One per folder in a process, as the API has: it prunes the folder once it has
+    written a tenth of its bound, not at every chunk's first tile."""
+    key = (settings.tile_cache_dir, settings.tile_disk_cache_bytes)
+    if key not in _disk_caches:
+        _disk_caches[key] = DiskTileCache(*key)
+    return _disk_caches[key]
+
+
 def a_stage_waits(session: Session) -> bool:
     """Whether a job's stage has been queued and not yet taken by a worker."""
     waiting = select(StageRun.id).where(
@@ -179,6 +191,11 @@ class ChunkResult:
     total: int = 0
     next_start: int | None = None  # where the next chunk begins; None: done
     gone: bool = False  # the survey or comparison is no longer there (or not succeeded)
+    layers: list[PrerenderLayer] = field(default_factory=list)
+
+    @property
+    def done(self) -> int:
+        return self.total if self.next_start is None else self.next_start
 
 
 def prerender_chunk(
@@ -195,7 +212,7 @@ def prerender_chunk(
     if owner not in OWNERS:
         raise ValueError(f"tiles are rendered ahead for {', '.join(OWNERS)}, not {owner!r}")
     result = ChunkResult()
-    disk = DiskTileCache(settings.tile_cache_dir, settings.tile_disk_cache_bytes)
+    disk = _disk_cache(settings)
     group = group_name(owner, owner_id)
     layers = prerender_layers(session, storage, settings, owner, owner_id)
     session.commit()  # no transaction held open while rendering
@@ -203,6 +220,7 @@ def prerender_chunk(
         result.gone = True
         disk.forget_groups([group])
         return result
+    result.layers = layers
     if start == 0:
         # Tiles of files this owner no longer shows (a product replaced by a new file).
         disk.keep_only(group, {layer.identity for layer in layers})
