@@ -30,6 +30,12 @@ describe("popupClearance", () => {
     expect(popupClearance(map, view, [panel, elsewhere]).topLeft).toEqual([8, 8]);
   });
 
+  it("leaves out the controls beside the popup's columns", () => {
+    const legend = { left: 10, top: 400, right: 330, bottom: 573 }; // a laptop's, bottom left
+    expect(popupClearance(map, view, [legend], { left: 340, right: 380 }).bottomRight).toEqual([8, 8]);
+    expect(popupClearance(map, view, [legend], { left: 200, right: 380 }).bottomRight).toEqual([8, 583 - 400 + 8]);
+  });
+
   it("never asks for less than a readable popup", () => {
     const tall = { left: 0, top: 60, right: 390, bottom: 300 };
     const low = { left: 0, top: 350, right: 390, bottom: 583 };
