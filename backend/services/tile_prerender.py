@@ -35,6 +35,7 @@ from sqlalchemy.orm import Session
 
 from backend.config import Settings
 from backend.db.models import Comparison, JobState, Product, StageRun, StageState, Survey
+from backend.services.post_motion import PostMotion, motion_from_summary
 from backend.services.tile_cache import DiskTileCache, FileIdentity, file_identity, group_name
 from backend.services.tiles import (
     COMPARISON_LAYERS,
@@ -71,7 +72,7 @@ class PrerenderLayer:
     path: Path
     identity: FileIdentity
     rescale: tuple[float, float] | None
-    shift_m: tuple[float, float] | None
+    motion: PostMotion | None
     zooms: tuple[int, ...]
     tiles: tuple[morecantile.Tile, ...] = field(repr=False)
 
@@ -112,7 +113,7 @@ def _layer(
     group: str,
     spec: LayerSpec,
     path: Path,
-    shift_m: tuple[float, float] | None = None,
+    motion: PostMotion | None = None,
 ) -> PrerenderLayer:
     info = layer_info(path)
     levels = bounded_levels(info, settings.tile_prerender_max_tiles)
@@ -125,7 +126,7 @@ def _layer(
         path=path,
         identity=file_identity(path),
         rescale=rescale,
-        shift_m=shift_m,
+        motion=motion,
         zooms=tuple(z for z, _ in levels),
         tiles=tuple(tile for _, tiles in levels for tile in tiles),
     )
@@ -147,14 +148,13 @@ def prerender_layers(
         if comparison is None or comparison.status != JobState.succeeded:
             return None
         specs = [COMPARISON_LAYERS[name] for name in ("dh", "hillshade", "dsm")]
-        shift = (comparison.summary or {}).get("shift_m")
+        motion = motion_from_summary(comparison.summary)
         orthophoto = _product_path(
             session, storage, "surveys", comparison.post_survey_id, "orthophoto"
         )
-        if shift and orthophoto is not None:
+        if motion and orthophoto is not None:
             # The page draws the post survey's orthophoto where the comparison put it.
-            moved = (float(shift["east"]), float(shift["north"]))
-            layers.append(_layer(settings, group, SURVEY_LAYERS["orthophoto"], orthophoto, moved))
+            layers.append(_layer(settings, group, SURVEY_LAYERS["orthophoto"], orthophoto, motion))
     for spec in specs:
         path = _product_path(session, storage, owner, owner_id, spec.product_kind)
         if path is not None:
@@ -243,7 +243,7 @@ def prerender_chunk(
         position += 1
         key = tile_key(
             layer.identity, layer.spec, tile.z, tile.x, tile.y, layer.rescale, None,
-            layer.group, layer.shift_m,
+            layer.group, layer.motion,
         )  # fmt: skip
         if disk.contains(key):
             result.present += 1
@@ -251,7 +251,7 @@ def prerender_chunk(
         try:
             png = render_tile(
                 layer.path, layer.spec, tile.z, tile.x, tile.y, layer.rescale, None,
-                max_read_pixels=settings.tile_max_read_pixels, shift_m=layer.shift_m,
+                max_read_pixels=settings.tile_max_read_pixels, motion=layer.motion,
             )  # fmt: skip
         except (TileOutsideBounds, TileTooCostly):
             result.refused += 1
@@ -265,7 +265,7 @@ def prerender_chunk(
 def describe(owner: str, owner_id: int, layers: list[PrerenderLayer]) -> str:
     """One line on what is rendered ahead: each layer's levels and tiles."""
     parts = [
-        f"{layer.spec.name}{'@moved' if layer.shift_m else ''} z{layer.zooms[0]}-{layer.zooms[-1]} "
+        f"{layer.spec.name}{'@moved' if layer.motion else ''} z{layer.zooms[0]}-{layer.zooms[-1]} "
         f"({len(layer.tiles)} tiles)"
         for layer in layers
         if layer.zooms

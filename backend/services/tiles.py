@@ -5,7 +5,8 @@ A layer is a named style of one raster product that we own:
     survey      dsm        the DSM, colormap `terrain`, stretched to its 2nd..98th percentile
                 hillshade  the DSM shaded (titiler's HillShade formula, sun from the north-west)
                 orthophoto the true orthophoto (RGB, its alpha as the mask), as it is or moved
-                           by a comparison's co-registration (`shift_m`)
+                           by a comparison's co-registration (its rotation and shift:
+                           post_motion.py)
     comparison  dh         Δh = post − pre, colormap `rdbu_r`, symmetric around zero
                 dsm        the co-registered post DSM, as the survey DSM
                 hillshade  the co-registered post DSM shaded
@@ -46,6 +47,7 @@ from rio_tiler.models import ImageData
 from scipy import ndimage
 
 from backend.geotiff import NotGeoTiff, is_geotiff, open_geotiff
+from backend.services.post_motion import PostMotion, moved_image
 from backend.services.tile_cache import FileIdentity, TileKey, file_identity
 
 TMS = morecantile.tms.get("WebMercatorQuad")
@@ -248,14 +250,14 @@ def tile_key(
     rescale: tuple[float, float] | None,
     colormap: str | None,
     group: str,
-    shift_m: tuple[float, float] | None = None,
+    motion: PostMotion | None = None,
 ) -> TileKey:
     """The cache key of a tile, the same wherever it is rendered (an API request, a worker
     rendering ahead): `rescale` is the stretch drawn (the default one resolved), so a
     request naming the default stretch and one naming none share their tile."""
     style = f"{spec.name}/{spec.style}"
-    if shift_m:
-        style += f"@{shift_m[0]:.3f},{shift_m[1]:.3f}"  # a moved tile is another tile
+    if motion:
+        style += f"@{motion.tag}"  # a moved tile is another tile
     return TileKey(identity, style, z, x, y, rescale, colormap, group)
 
 
@@ -468,13 +470,13 @@ def render_tile(
     rescale: tuple[float, float] | None = None,
     colormap: str | None = None,
     max_read_pixels: int = DEFAULT_MAX_READ_PIXELS,
-    shift_m: tuple[float, float] | None = None,
+    motion: PostMotion | None = None,
 ) -> bytes:
     """A 256 px PNG of tile z/x/y; raises TileOutsideBounds outside the raster and
     TileTooCostly where the read would decode more than `max_read_pixels` of the file.
-    An image layer may be drawn moved by `shift_m` (east, north on the ground)."""
+    An image layer may be drawn moved by a co-registration's `motion`."""
     if spec.style == LayerStyle.image:
-        return _image_tile(path, z, x, y, max_read_pixels, shift_m)
+        return _image_tile(path, z, x, y, max_read_pixels, motion)
     hillshade = spec.style == LayerStyle.hillshade
     buffer = HILLSHADE_BUFFER if hillshade else 0
     method = "cubic" if hillshade else "bilinear"
@@ -514,34 +516,23 @@ def _image_tile(
     x: int,
     y: int,
     max_read_pixels: int,
-    shift_m: tuple[float, float] | None,
+    motion: PostMotion | None,
 ) -> bytes:
-    """A colour tile: the tile's area read from the file (moved back by `shift_m`, so the
-    data shows `shift_m` further east and north), its alpha band as the mask."""
+    """A colour tile: the tile's area read from the file, or where `motion` brings the
+    data from (the file turned and shifted as the co-registration moved it), its alpha
+    band as the mask."""
     with _READERS.reader(path) as reader:
         if not reader.tile_exists(x, y, z):
             raise TileOutsideBounds(f"Tile(x={x}, y={y}, z={z}) is outside bounds")
         pixels = tile_read_pixels(reader.dataset, z, x, y)
         if pixels > max_read_pixels:
             raise TileTooCostly(pixels, max_read_pixels)
-        if not shift_m:
+        if not motion:
             img = reader.tile(x, y, z, tilesize=TILE_SIZE, resampling_method="bilinear",
                               reproject_method="bilinear")  # fmt: skip
         else:
-            left, bottom, right, top = TMS.xy_bounds(morecantile.Tile(x, y, z))
-            # Web Mercator stretches ground distances by 1 / cos(latitude).
-            lat = math.degrees(math.atan(math.sinh((top + bottom) / 2 / 6378137.0)))
-            k = 1.0 / math.cos(math.radians(lat))
-            dx, dy = shift_m[0] * k, shift_m[1] * k
-            img = reader.part(
-                (left - dx, bottom - dy, right - dx, top - dy),
-                dst_crs=WEB_MERCATOR,
-                bounds_crs=WEB_MERCATOR,
-                width=TILE_SIZE,
-                height=TILE_SIZE,
-                resampling_method="bilinear",
-                reproject_method="bilinear",
-            )
+            bounds = tuple(TMS.xy_bounds(morecantile.Tile(x, y, z)))
+            img = moved_image(reader.dataset, bounds, WEB_MERCATOR, TILE_SIZE, motion)  # type: ignore[arg-type]
     return encode_rgba_png(img)
 
 

@@ -28,6 +28,7 @@ from backend.api.deps import SessionDep, StorageDep, owned_by_site, public_base
 from backend.config import Settings
 from backend.db.models import Comparison, JobState, Product, Site, Survey
 from backend.ids import RowId
+from backend.services.post_motion import PostMotion, motion_from_summary
 from backend.services.tile_cache import (
     DiskTileCache,
     TileCache,
@@ -180,11 +181,11 @@ async def _tile(
     y: int,
     rescale: str | None,
     colormap: str | None,
-    shift_m: tuple[float, float] | None = None,
-    shift_by: str | None = None,
+    motion: PostMotion | None = None,
+    moved_by: str | None = None,
 ) -> Response:
-    """`shift_m`: the tile drawn moved (an orthophoto onto a comparison's pre survey);
-    `shift_by`: the group of the comparison that moves it, whose tiles it then is."""
+    """`motion`: the tile drawn moved (an orthophoto onto a comparison's pre survey);
+    `moved_by`: the group of the comparison that moves it, whose tiles it then is."""
     if not 0 <= z <= 24 or not (0 <= x < 2**z and 0 <= y < 2**z):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"tile {z}/{x}/{y} does not exist")
     try:
@@ -203,8 +204,8 @@ async def _tile(
         ) or await run_in_threadpool(
             default_rescale, spec, source.path, settings.tile_max_read_pixels
         )
-    group = group_name(source.owner, source.owner_id) if shift_by is None else shift_by
-    key = tile_key(identity, spec, z, x, y, stretch, name, group, shift_m)
+    group = group_name(source.owner, source.owner_id) if moved_by is None else moved_by
+    key = tile_key(identity, spec, z, x, y, stretch, name, group, motion)
     headers = {"Cache-Control": TILE_CACHE_CONTROL, "ETag": key.etag}
     if etag_matches(request.headers.get("if-none-match"), key.etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
@@ -231,7 +232,7 @@ async def _tile(
                     stretch,
                     name,
                     max_read_pixels=settings.tile_max_read_pixels,
-                    shift_m=shift_m,
+                    motion=motion,
                 ),
                 abandon_on_cancel=True,
                 limiter=_render_limiter(request),
@@ -312,21 +313,23 @@ async def survey_tile(
         RowId | None,
         Query(
             description="A comparison whose post survey this is: the orthophoto drawn moved by "
-            "its co-registration (its horizontal shift), onto the pre survey"
+            "its co-registration (turned by its rotation about the centre of its grid, then "
+            "shifted), onto the pre survey"
         ),
     ] = None,
 ) -> Response:
     if coregistered_by is None:
         return await _tile(request, source, z, x, y, rescale, colormap)
-    shift = _coregistration_shift(session, source, coregistered_by)
+    motion = _coregistration_motion(session, source, coregistered_by)
     group = group_name("comparisons", coregistered_by)
-    return await _tile(request, source, z, x, y, rescale, colormap, shift, group)
+    return await _tile(request, source, z, x, y, rescale, colormap, motion, group)
 
 
-def _coregistration_shift(
+def _coregistration_motion(
     session: SessionDep, source: LayerSource, comparison_id: int
-) -> tuple[float, float]:
-    """The horizontal correction a comparison applied to this survey (its post survey)."""
+) -> PostMotion:
+    """The horizontal correction (rotation and shift) a comparison applied to this survey
+    (its post survey)."""
     if source.spec.style != LayerStyle.image:
         raise HTTPException(
             status.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -341,12 +344,12 @@ def _coregistration_shift(
             status.HTTP_422_UNPROCESSABLE_CONTENT,
             f"survey {source.owner_id} is not the post survey of comparison {comparison_id}",
         )
-    shift = (comparison.summary or {}).get("shift_m")
-    if not shift:
+    motion = motion_from_summary(comparison.summary)
+    if motion is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT, f"comparison {comparison_id} has no co-registration yet"
         )
-    return float(shift["east"]), float(shift["north"])
+    return motion
 
 
 @router.get(
