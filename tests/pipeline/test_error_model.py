@@ -11,6 +11,7 @@ from worker.pipeline.change_regions import (
     RegionOptions,
     describe_region,
     label_regions,
+    min_area_m2,
     significant_regions,
 )
 from worker.pipeline.difference import GAIN, LOSS
@@ -128,3 +129,53 @@ def test_polygon_intervals_cover_the_planted_slide():
         covered_area += a_low <= 40 * 50 * PIXEL**2 <= a_high
     assert covered_volume / trials >= 0.9
     assert covered_area / trials >= 0.9
+
+
+def _no_change_rasters(seed: int, width_px: float, planted: bool) -> ChangeRasters:
+    """Correlated errors (and a collapsed mound of 36 m2 at -0.8 m when planted)."""
+    rng = np.random.default_rng(200 + seed)
+    shape = (300, 300)
+    dh = 0.1 * (0.4 * rng.normal(size=shape) + 0.9 * _correlated(rng, shape, width_px))
+    if planted:
+        dh[100:112, 140:152] -= 0.8
+        dh[200:203, 60:63] += 3.0  # a spike of the reconstruction, 2.25 m2
+    dh = dh.astype(np.float32)
+    flat = np.zeros(shape, np.float32)
+    model = fit_error_model(dh, flat, flat, PIXEL)
+    lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
+    centred = (dh - model.median_dh_m).astype(np.float32)
+    significance = np.zeros(shape, np.uint8)
+    significance[centred < -lod] = LOSS
+    significance[centred > lod] = GAIN
+    return ChangeRasters(
+        dh=centred,
+        lod=lod,
+        significance=significance,
+        transform=from_origin(500000, 4000000, PIXEL, PIXEL),
+        crs="EPSG:32654",
+        model=model,
+    )
+
+
+def test_a_small_strong_change_is_kept_and_correlated_error_is_not():
+    """Below the correlation area, only change twice its LoD on average is kept."""
+    options = RegionOptions()
+    strict = RegionOptions(small_region_lod_ratio=None)  # the minimum area alone
+
+    def kept(rasters: ChangeRasters, opts: RegionOptions) -> tuple[np.ndarray, set[int]]:
+        labels, keep, _ = label_regions(significant_regions(rasters, opts), rasters, opts)
+        return labels, set(keep)
+
+    for seed in range(8):
+        noise = _no_change_rasters(seed, (2, 4, 6, 10)[seed % 4], planted=False)
+        assert kept(noise, options)[1] == kept(noise, strict)[1], f"seed {seed}"
+
+        # Errors correlated over 6-10 pixels: the minimum area is 90-170 m2.
+        rasters = _no_change_rasters(seed, (6, 10)[seed % 2], planted=True)
+        assert min_area_m2(rasters, options) > 36, "the mound must be below the minimum area"
+        labels, keep = kept(rasters, options)
+        _, keep_strict = kept(rasters, strict)
+        mound = int(labels[106, 146])
+        assert keep - keep_strict == {mound}, f"seed {seed}: added {keep - keep_strict}"
+        assert mound not in keep_strict
+        assert labels[201, 61] not in keep  # the spike: narrower than the errors resolve

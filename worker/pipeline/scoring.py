@@ -43,6 +43,8 @@ from worker.pipeline.vectorize import VectorizeResult, detection_totals
 @dataclass
 class ScoreOptions(RegionOptions):
     area_z: float = 4.0  # area-level significance of a candidate, in standard errors
+    # The scorer was fitted on candidates of the minimum area; smaller ones stay out.
+    small_region_lod_ratio: float | None = None
     min_pixel_z: float = 1.0  # and each of its pixels at least this many sigmas
     scorer: str | None = None  # path of a scorer JSON; None: the shipped default
     threshold: float | None = None  # None: the scorer's operating threshold
