@@ -57,9 +57,14 @@ def test_creating_a_comparison_queues_its_first_stage(
     assert [s["stage"] for s in job["stages"]] == list(stages_for(default_method()))
     assert all(s["state"] == "pending" and s["progress"] == 0 for s in job["stages"])
     messages = broker_messages(app)
-    assert len(messages) == 1
-    assert messages[0]["headers"]["task"] == "slidewatch.run_stage"
-    assert messages[0]["headers"]["argsrepr"] == f"[{job['id']}, 'align']"
+    stages = [m for m in messages if m["headers"]["task"] == "slidewatch.run_stage"]
+    assert len(stages) == 1
+    assert stages[0]["headers"]["argsrepr"] == f"[{job['id']}, 'align']"
+    # Besides: each survey's map tiles, to be rendered ahead since its upload.
+    others = [m["headers"] for m in messages if m not in stages]
+    assert {(h["task"], h["argsrepr"]) for h in others} == {
+        ("slidewatch.prerender_tiles", f"['surveys', {survey}, 0]") for survey in surveys
+    }
 
 
 def test_finished_comparison_serves_detections_and_products(

@@ -7,16 +7,21 @@ an operator would, in a temporary data directory on the embedded default (or on
 `--database-url`): `slidewatch migrate`, a token, `slidewatch api` (as many processes as
 SLIDEWATCH_API_WORKERS, or `--api-workers`), and a simulated pre/post DSM pair
 (`--size` pixels a side, 0.25 m) uploaded as two surveys and compared by a
-`slidewatch worker`, which is stopped before anything is measured.
+`slidewatch worker`, which is stopped before anything is measured: once the comparison has
+succeeded and the worker has rendered the surveys' and the comparison's tiles ahead
+(SLIDEWATCH_TILE_PRERENDER_MAX_TILES a layer; `--no-prerender` turns it off), as it does
+for every survey and comparison.
 
 The requests are what the map asks for while people pan and zoom over the site: viewports of
 4 × 3 tiles (a 1024 × 768 map) at random places and zoom levels over the site's bounds, on
 four layers (the comparison's Δh, hillshade and DSM, and the pre survey's DSM), each tile
 asked once. For each number of clients (`--clients`, default 1 and 20) the API is started
-afresh (its caches empty: the memory of its processes and the tile folder they share) and
+afresh (its caches empty: the memory of its processes, and of the tile folder they share
+everything but what the worker rendered ahead) and
 
 - `cold`: the clients share the list of unique tiles (`--tiles` of them), each taking the
-  next one as soon as its previous answer arrived: every tile is rendered;
+  next one as soon as its previous answer arrived: tiles nobody has asked for yet (read
+  from the tiles rendered ahead where they are, rendered otherwise);
 - `warm`: the same tiles again: what a second visit, or a second user, costs;
 - `revalidate`: the same tiles with `If-None-Match` of the first answer, as a browser
   sends once its copy is older than `max-age`.
@@ -33,6 +38,7 @@ import asyncio
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import socket
@@ -99,8 +105,36 @@ def _stop(process: subprocess.Popen) -> None:
             process.wait()
 
 
-def _make_comparison(client: httpx.Client, folder: Path, size: int, env: dict) -> dict[str, int]:
-    """Upload a simulated pair as two surveys and compare them with a real worker."""
+PRERENDER_DONE = re.compile(
+    r"tiles of (surveys|comparisons) (\d+) (?:rendered ahead: .*, done|not rendered ahead)"
+)
+PRERENDER_LINE = re.compile(r"rendered ahead: \d+ of \d+ \((\d+) rendered.* in ([\d.]+) s\)")
+
+
+def _prerendered(log: Path) -> set[tuple[str, int]]:
+    """The surveys and comparisons whose tiles the worker has finished rendering ahead."""
+    text = log.read_text(errors="replace") if log.exists() else ""
+    return {(owner, int(owner_id)) for owner, owner_id in PRERENDER_DONE.findall(text)}
+
+
+def _prerender_figures(log: Path, cache: Path) -> dict[str, Any]:
+    text = log.read_text(errors="replace")
+    chunks = PRERENDER_LINE.findall(text)
+    files = [p for p in cache.rglob("*.png")] if cache.exists() else []
+    return {
+        "tiles": len(files),
+        "bytes": sum(p.stat().st_size for p in files),
+        "rendered": sum(int(rendered) for rendered, _ in chunks),
+        "render_s": round(sum(float(seconds) for _, seconds in chunks), 1),
+        "chunks": len(chunks),
+    }
+
+
+def _make_comparison(
+    client: httpx.Client, folder: Path, size: int, env: dict, prerender: bool
+) -> dict[str, int]:
+    """Upload a simulated pair as two surveys and compare them with a real worker, which
+    also renders their tiles ahead (unless not `prerender`)."""
     pair = make_dsm_pair(shape=(size, size), pixel_size_m=0.25, shift_m=(1.3, -0.7, 0.2), seed=11)
     paths = write_dsm_pair(pair, folder / "pair")
     site = client.post("/api/v1/sites", json={"name": "tile bench"}).json()["id"]
@@ -122,9 +156,9 @@ def _make_comparison(client: httpx.Client, folder: Path, size: int, env: dict) -
     if created.status_code != 202:
         raise click.ClickException(f"comparison: {created.status_code} {created.text}")
     comparison = created.json()["comparison"]["id"]
-    worker = subprocess.Popen(
-        [_slidewatch(), "worker"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
+    log = folder / "worker.log"
+    with log.open("ab") as out:
+        worker = subprocess.Popen([_slidewatch(), "worker"], env=env, stdout=out, stderr=out)
     try:
         deadline = time.monotonic() + 900
         while time.monotonic() < deadline:
@@ -136,6 +170,13 @@ def _make_comparison(client: httpx.Client, folder: Path, size: int, env: dict) -
             time.sleep(1)
         else:
             raise click.ClickException("the comparison did not finish in 15 minutes")
+        owners = {("surveys", surveys[0]), ("surveys", surveys[1]), ("comparisons", comparison)}
+        # A worker renders some 100 tiles a second on an idle core, far fewer on a busy one.
+        deadline = time.monotonic() + 3600
+        while prerender and not owners <= _prerendered(log):
+            if time.monotonic() > deadline:
+                raise click.ClickException("the tiles were not rendered ahead in an hour")
+            time.sleep(1)
     finally:
         _stop(worker)
     return {"site": site, "pre": surveys[0], "post": surveys[1], "comparison": comparison}
@@ -298,6 +339,12 @@ def _start_api(env: dict, port: int, log: Path) -> subprocess.Popen:
     default=None,
     help="A database to use instead of the embedded SQLite (it must be empty).",
 )
+@click.option(
+    "--no-prerender",
+    is_flag=True,
+    help="No tiles rendered ahead by the worker (SLIDEWATCH_TILE_PRERENDER_MAX_TILES=0): "
+    "every cold tile is rendered when asked.",
+)
 @click.option("--keep", is_flag=True, help="Keep the temporary data directory.")
 def tiles(
     json_path: Path,
@@ -306,6 +353,7 @@ def tiles(
     client_counts: tuple[int, ...],
     api_workers: int | None,
     database_url: str | None,
+    no_prerender: bool,
     keep: bool,
 ) -> None:
     """Tile latency (p50/p95/p99) and requests/s of a real API, cold and warm."""
@@ -319,6 +367,9 @@ def tiles(
         env["SLIDEWATCH_API_WORKERS"] = str(api_workers)
     if database_url:
         env["SLIDEWATCH_DATABASE_URL"] = database_url
+    if no_prerender:
+        env["SLIDEWATCH_TILE_PRERENDER_MAX_TILES"] = "0"
+    cache = folder / "data" / "cache" / "tiles"
     port = _free_port()
     base = f"http://127.0.0.1:{port}"
     log = folder / "api.log"
@@ -340,11 +391,21 @@ def tiles(
         try:
             with httpx.Client(base_url=base, headers=headers, timeout=600) as client:
                 started = time.perf_counter()
-                ids = _make_comparison(client, folder, size, env)
+                ids = _make_comparison(client, folder, size, env, not no_prerender)
                 click.echo(f"comparison made in {time.perf_counter() - started:.0f} s")
                 layers = _layers(client, ids)
         finally:
             _stop(api)
+        results["prerender"] = (
+            None if no_prerender else _prerender_figures(folder / "worker.log", cache)
+        )
+        if results["prerender"]:
+            figures = results["prerender"]
+            click.echo(
+                f"rendered ahead: {figures['tiles']} tiles, {figures['bytes'] / 1e6:.0f} MB, "
+                f"{figures['render_s']} s of rendering"
+            )
+        ahead = set(cache.rglob("*.png")) if cache.exists() else set()
         paths = tile_requests(layers, tile_count)
         results["layers"] = [
             {"name": layer.name, "minzoom": layer.minzoom, "maxzoom": layer.maxzoom}
@@ -352,8 +413,11 @@ def tiles(
         ]
         results["unique_tiles"] = len(paths)
         for clients in client_counts:
-            # Afresh, its caches empty: the processes' memory, and the folder they share.
-            shutil.rmtree(folder / "data" / "cache" / "tiles", ignore_errors=True)
+            # Afresh, its caches empty: the processes' memory, and in the folder they share
+            # what earlier runs rendered (what the worker rendered ahead stays).
+            if cache.exists():
+                for path in set(cache.rglob("*.png")) - ahead:
+                    path.unlink()
             api = _start_api(env, port, log)
             try:
                 with httpx.Client(base_url=base, headers=headers, timeout=60) as client:
