@@ -40,6 +40,8 @@ def main() -> None:
         images = []
         with Reader(str(cog), tms=TMS) as reader:
             for tile in tiles:
+                if not reader.tile_exists(tile.x, tile.y, tile.z):
+                    continue  # touches the layer's bounds only: the API answers 404
                 img = reader.tile(
                     tile.x, tile.y, tile.z, tilesize=256,
                     resampling_method="bilinear", reproject_method="bilinear",
