@@ -121,6 +121,7 @@ class _StatsMemo:
     def __init__(self, max_files: int = 256) -> None:
         self.max_files = max_files
         self._stats: OrderedDict[tuple[FileIdentity, int], RasterStats] = OrderedDict()
+        self._reading: dict[tuple[FileIdentity, int], threading.Lock] = {}
         self._lock = threading.Lock()
 
     def peek(self, identity: FileIdentity, max_read_pixels: int) -> RasterStats | None:
@@ -128,13 +129,23 @@ class _StatsMemo:
             return self._stats.get((identity, max_read_pixels))
 
     def get(self, identity: FileIdentity, max_read_pixels: int) -> RasterStats:
-        stats = self.peek(identity, max_read_pixels)
-        if stats is None:
-            stats = _raster_stats(identity, max_read_pixels)
-            with self._lock:
-                self._stats[(identity, max_read_pixels)] = stats
-                while len(self._stats) > self.max_files:
-                    self._stats.popitem(last=False)
+        """The stats, read once however many tiles ask at once (the first tiles of a layer
+        all ask for its stretch: 20 reads of the file at once took seconds)."""
+        key = (identity, max_read_pixels)
+        stats = self.peek(*key)
+        if stats is not None:
+            return stats
+        with self._lock:
+            reading = self._reading.setdefault(key, threading.Lock())
+        with reading:
+            stats = self.peek(*key)
+            if stats is None:
+                stats = _raster_stats(identity, max_read_pixels)
+                with self._lock:
+                    self._stats[key] = stats
+                    while len(self._stats) > self.max_files:
+                        self._stats.popitem(last=False)
+                    self._reading.pop(key, None)
         return stats
 
 

@@ -182,6 +182,18 @@ def _make_comparison(
     return {"site": site, "pre": surveys[0], "post": surveys[1], "comparison": comparison}
 
 
+def _made_comparison(client: httpx.Client) -> dict[str, int]:
+    """The ids of the comparison an earlier run made (`--reuse`)."""
+    site = client.get("/api/v1/sites").json()[0]["id"]
+    comparison = client.get(f"/api/v1/sites/{site}/comparisons").json()[0]
+    return {
+        "site": site,
+        "pre": comparison["pre_survey_id"],
+        "post": comparison["post_survey_id"],
+        "comparison": comparison["id"],
+    }
+
+
 def _layers(client: httpx.Client, ids: dict[str, int]) -> list[Layer]:
     site = ids["site"]
     bases = {
@@ -346,6 +358,13 @@ def _start_api(env: dict, port: int, log: Path) -> subprocess.Popen:
     "every cold tile is rendered when asked.",
 )
 @click.option("--keep", is_flag=True, help="Keep the temporary data directory.")
+@click.option(
+    "--reuse",
+    type=click.Path(path_type=Path, exists=True, file_okay=False),
+    default=None,
+    help="Measure again on the directory a run with --keep left (its comparison and the "
+    "tiles rendered ahead), instead of making them anew.",
+)
 def tiles(
     json_path: Path,
     size: int,
@@ -355,9 +374,11 @@ def tiles(
     database_url: str | None,
     no_prerender: bool,
     keep: bool,
+    reuse: Path | None,
 ) -> None:
     """Tile latency (p50/p95/p99) and requests/s of a real API, cold and warm."""
-    folder = Path(tempfile.mkdtemp(prefix="slidewatch-bench-tiles-"))
+    folder = reuse or Path(tempfile.mkdtemp(prefix="slidewatch-bench-tiles-"))
+    keep = keep or reuse is not None
     env = {
         **os.environ,
         "SLIDEWATCH_DATA_DIR": str(folder / "data"),
@@ -381,7 +402,8 @@ def tiles(
         "runs": [],
     }
     try:
-        subprocess.run([_slidewatch(), "migrate"], env=env, check=True, capture_output=True)
+        if reuse is None:
+            subprocess.run([_slidewatch(), "migrate"], env=env, check=True, capture_output=True)
         token = subprocess.run(
             [_slidewatch(), "create-token", "--name", "bench"],
             env=env, check=True, capture_output=True, text=True,
@@ -391,13 +413,17 @@ def tiles(
         try:
             with httpx.Client(base_url=base, headers=headers, timeout=600) as client:
                 started = time.perf_counter()
-                ids = _make_comparison(client, folder, size, env, not no_prerender)
-                click.echo(f"comparison made in {time.perf_counter() - started:.0f} s")
+                if reuse is None:
+                    ids = _make_comparison(client, folder, size, env, not no_prerender)
+                    click.echo(f"comparison made in {time.perf_counter() - started:.0f} s")
+                else:
+                    ids = _made_comparison(client)
                 layers = _layers(client, ids)
         finally:
             _stop(api)
+        prerendered = not no_prerender and (folder / "worker.log").exists()
         results["prerender"] = (
-            None if no_prerender else _prerender_figures(folder / "worker.log", cache)
+            _prerender_figures(folder / "worker.log", cache) if prerendered else None
         )
         if results["prerender"]:
             figures = results["prerender"]
@@ -442,6 +468,10 @@ def tiles(
                 results["runs"].append(run)
             finally:
                 _stop(api)
+        if keep and cache.exists():
+            # As the worker left it, for --reuse.
+            for path in set(cache.rglob("*.png")) - ahead:
+                path.unlink()
     finally:
         if keep:
             click.echo(f"data kept in {folder}")
