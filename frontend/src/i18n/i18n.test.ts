@@ -1,5 +1,8 @@
 import { afterEach, describe, expect, it } from "vitest";
 import { formatArea, formatDate, formatDateTime, formatFixed, formatMetres, formatPercent, formatVolume } from "../format";
+import { correctionText } from "../map/alignment";
+import { differenceLegend, elevationLegend } from "../map/legend";
+import { profileSvg } from "../map/measureMath";
 import type { Message } from "./catalogue";
 import { catalogues, chooseLanguage, currentLanguage, currentLocale, languages, onLanguageChange, resolveLocale, t, useLocale } from "./index";
 
@@ -135,5 +138,20 @@ describe("formats of the locale", () => {
     expect(formatVolume(5678.9)).toBe("5,679 m³");
     expect(formatPercent(0.456)).toBe("45%");
     expect(formatFixed(0.5, 2)).toBe("0.50");
+  });
+});
+
+describe("the map in Japanese", () => {
+  it("states the co-registration, the legends and the profile in Japanese, with their numbers", () => {
+    useLocale("ja-JP");
+    expect(correctionText({ shift_m: { east: 2.1, north: -0.4, up: 0.2 }, rotation_deg: 0.021 })).toBe(
+      "前時期に合わせて後時期を東へ 2.10 m、北へ −0.40 m、上へ 0.20 m 移動、0.02° 回転",
+    );
+    const elevation = elevationLegend([100, 140], t("map.preDsm"), "elevation-pre");
+    expect(elevation.dataset.legend).toBe("elevation-pre"); // the same legend whatever its words
+    expect(elevation.querySelector("figcaption")?.textContent).toBe("前時期 DSM：標高（m、その DSM の基準面から）");
+    expect(differenceLegend([-2, 2]).querySelector("figcaption")?.textContent).toBe("Δh = 後時期 − 前時期（m）：青は減少、赤は増加");
+    const svg = profileSvg({ distance_m: [0, 1234.5], length_m: 1234.5, heights_m: { dsm: [10, 12] } });
+    expect(svg).toContain('aria-label="標高断面、1,234.5 m"');
   });
 });

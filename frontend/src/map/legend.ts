@@ -2,7 +2,8 @@
 
 import { cssGradient, legendPosition, ticks } from "../colormap";
 import { scoreColor } from "../detections";
-import { formatMetres } from "../format";
+import { formatMetres, formatNumber } from "../format";
+import { t } from "../i18n";
 
 function scale(title: string, gradient: string, range: [number, number], id: string): HTMLElement {
   const [low, high] = range;
@@ -20,14 +21,19 @@ function scale(title: string, gradient: string, range: [number, number], id: str
   return box;
 }
 
-/** The elevation colours in metres; `layer` names the DSM when each has its own stretch. */
-export function elevationLegend(range: [number, number], layer?: string): HTMLElement {
-  const title = layer ? `${layer}: elevation (m above its datum)` : "Elevation (m above the DSMs' datum)";
-  return scale(title, cssGradient("terrain"), range, layer ? `elevation-${layer.split(" ")[0].toLowerCase()}` : "elevation");
+/** The elevation colours in metres; `layer` names the DSM when each has its own stretch,
+ * `id` marks the legend (by default from the layer's name). */
+export function elevationLegend(
+  range: [number, number],
+  layer?: string,
+  id = layer ? `elevation-${layer.split(" ")[0].toLowerCase()}` : "elevation",
+): HTMLElement {
+  const title = layer ? t("legend.elevationOf", { layer }) : t("legend.elevation");
+  return scale(title, cssGradient("terrain"), range, id);
 }
 
 export function differenceLegend(range: [number, number]): HTMLElement {
-  const box = scale("Δh = post − pre (m): blue lost, red gained", cssGradient("rdbu_r"), range, "dh");
+  const box = scale(t("legend.dh"), cssGradient("rdbu_r"), range, "dh");
   return box;
 }
 
@@ -36,6 +42,6 @@ export function scoreLegend(): HTMLElement {
   box.className = "legend-scale";
   box.dataset.legend = "score";
   const stops = [0, 0.25, 0.5, 0.75, 1].map((s) => scoreColor(s)).join(", ");
-  box.innerHTML = `<figcaption>Detection score (0 unsure – 1 sure)</figcaption><div class="bar" style="background:linear-gradient(to right, ${stops})"></div><div class="ticks"><span style="left:0%">0</span><span style="left:50%">0.5</span><span style="left:100%">1</span></div>`;
+  box.innerHTML = `<figcaption>${t("legend.score")}</figcaption><div class="bar" style="background:linear-gradient(to right, ${stops})"></div><div class="ticks"><span style="left:0%">0</span><span style="left:50%">${formatNumber(0.5)}</span><span style="left:100%">1</span></div>`;
   return box;
 }

@@ -31,9 +31,9 @@ function alignmentNote(comparison: Comparison, corrected: boolean): HTMLElement 
   note.className = "alignment-note";
   note.dataset.legend = "alignment";
   const text = correctionText(comparison.summary);
-  if (!text) note.textContent = "Post shown as uploaded: the comparison states no correction.";
-  else if (corrected) note.textContent = `Post shown co-registered onto pre: ${text}.`;
-  else note.textContent = `Post shown as uploaded; the comparison found ${text}.`;
+  if (!text) note.textContent = t("map.noCorrection");
+  else if (corrected) note.textContent = t("map.corrected", { correction: text });
+  else note.textContent = t("map.notCorrected", { correction: text });
   return note;
 }
 
@@ -62,14 +62,14 @@ const PANES: Record<string, number> = {
   detections: 430,
 };
 
-const LABELS: Record<LayerKey, string> = {
-  pre: "Pre survey",
-  post: "Post survey",
-  dh: "Δh (post − pre)",
-  detections: "Detections",
-  cells: "Patch cells",
-  footprints: "Survey footprints",
-  trajectories: "Flight trajectories",
+const LABELS: Record<LayerKey, MessageKey> = {
+  pre: "map.layerPre",
+  post: "map.layerPost",
+  dh: "map.layerDh",
+  detections: "map.layerDetections",
+  cells: "map.layerCells",
+  footprints: "map.layerFootprints",
+  trajectories: "map.layerTrajectories",
 };
 
 const RASTERS: LayerKey[] = ["pre", "post", "dh"];
@@ -145,7 +145,7 @@ export class MapView {
     if (config.basemap_url) {
       L.tileLayer(config.basemap_url, { attribution: escapeHtml(config.basemap_attribution), maxZoom: 19 }).addTo(this.map);
     } else {
-      this.map.attributionControl.addAttribution("No basemap (works offline)");
+      this.map.attributionControl.addAttribution(t("map.noBasemap"));
     }
     for (const key of Object.keys(LABELS) as LayerKey[]) {
       this.groups.set(key, L.layerGroup().addTo(this.map));
@@ -155,7 +155,7 @@ export class MapView {
     this.controlsBox = this.addControl("topright", "map-controls");
     // The legends fold away (folded at first on a phone, where they would cover the map).
     const legends = (this.legendControl = this.addControl("bottomleft", "map-legends"));
-    legends.innerHTML = `<details ${window.innerWidth > 600 ? "open" : ""}><summary>Legend</summary><div class="legend-body"></div></details>`;
+    legends.innerHTML = `<details ${window.innerWidth > 600 ? "open" : ""}><summary>${t("map.legend")}</summary><div class="legend-body"></div></details>`;
     this.legendBox = legends.querySelector(".legend-body") as HTMLElement;
     this.swipeBox = this.buildSwipe(container);
     this.renderControls();
@@ -167,7 +167,7 @@ export class MapView {
     L.control.scale({ metric: true, imperial: false, position: "bottomright", maxWidth: 160 }).addTo(this.map);
     this.cursorBox = this.addControl("bottomright", "map-cursor");
     this.cursorBox.setAttribute("aria-live", "off");
-    this.cursorBox.textContent = "Move the pointer over the map for its position";
+    this.cursorBox.textContent = t("map.cursorHint");
     this.map.on("mousemove", (event: L.LeafletMouseEvent) => this.showCursor(event.latlng));
     this.timeBox = this.addControl("topleft", "map-time");
     this.renderTime();
@@ -204,7 +204,12 @@ export class MapView {
     const heights = await getJson<Record<string, number | null>>(`sites/${site.id}/${path}/heights?lon=${lon}&lat=${lat}`).catch(() => null);
     const box = this.cursorBox.querySelector("[data-role=heights]");
     if (!heights || !box) return;
-    const words: Record<string, string> = { pre: "Pre", post: "Post", dh: "Δh", dsm: timeSurvey ? timeSurvey.name : "DSM" };
+    const words: Record<string, string> = {
+      pre: t("map.heightPre"),
+      post: t("map.heightPost"),
+      dh: "Δh",
+      dsm: timeSurvey ? timeSurvey.name : t("map.heightDsm"),
+    };
     box.textContent = Object.entries(heights)
       .filter(([, value]) => value !== null)
       .map(([name, value]) => `${words[name] ?? name} ${formatMetres(value, 2)}`)
@@ -227,8 +232,8 @@ export class MapView {
     box.hidden = true;
     // The tags ride on the divider, each on its side of it.
     box.innerHTML = `<div class="swipe-line" aria-hidden="true"><div class="swipe-handle"></div>
-      <span class="swipe-tag left">pre</span><span class="swipe-tag right">post</span></div>
-      <label class="swipe-input"><span class="visually-hidden">Swipe position: pre survey to the left, post survey to the right</span>
+      <span class="swipe-tag left">${t("map.swipePre")}</span><span class="swipe-tag right">${t("map.swipePost")}</span></div>
+      <label class="swipe-input"><span class="visually-hidden">${t("map.swipePosition")}</span>
       <input type="range" min="0" max="100" step="1" value="50" id="swipe-range"></label>`;
     const input = box.querySelector("input") as HTMLInputElement;
     input.addEventListener("input", () => {
@@ -326,22 +331,22 @@ export class MapView {
       .map((key) => {
         const checked = this.visible.get(key) ? "checked" : "";
         const slider = RASTERS.includes(key)
-          ? `<label class="opacity"><span class="visually-hidden">${escapeHtml(LABELS[key])} opacity</span>
-             <input type="range" min="0" max="100" value="${Math.round((this.opacity.get(key) ?? 1) * 100)}" data-opacity="${key}" aria-label="${escapeHtml(LABELS[key])} opacity (%)"></label>`
+          ? `<label class="opacity"><span class="visually-hidden">${escapeHtml(t("map.opacity", { layer: t(LABELS[key]) }))}</span>
+             <input type="range" min="0" max="100" value="${Math.round((this.opacity.get(key) ?? 1) * 100)}" data-opacity="${key}" aria-label="${escapeHtml(t("map.opacityPercent", { layer: t(LABELS[key]) }))}"></label>`
           : "";
-        return `<div class="layer-row"><label><input type="checkbox" data-layer="${key}" ${checked}> ${escapeHtml(LABELS[key])}</label>${slider}${this.sideChoice(key)}</div>`;
+        return `<div class="layer-row"><label><input type="checkbox" data-layer="${key}" ${checked}> ${escapeHtml(t(LABELS[key]))}</label>${slider}${this.sideChoice(key)}</div>`;
       })
       .join("");
     // Open on a laptop; folded on a narrow (tablet portrait) screen until asked for.
     const open = (this.controlsBox.querySelector("details") as HTMLDetailsElement | null)?.open ?? window.innerWidth > 900;
     const view = (value: SurveyView, label: string) =>
       `<label><input type="radio" name="survey-view" value="${value}" ${this.surveyView === value ? "checked" : ""}> ${label}</label>`;
-    this.controlsBox.innerHTML = `<details ${open ? "open" : ""}><summary>Layers</summary>
-      <fieldset class="layer-row survey-view"><legend>Surveys show</legend>${view("orthophoto", "Orthophoto")}${view("dsm", "DSM")}</fieldset>${rows}
-      <div class="layer-row"><label><input type="checkbox" id="swipe-toggle" ${this.swipeOn ? "checked" : ""}> Swipe pre | post</label></div>
-      <div class="layer-row"><label><input type="checkbox" id="post-as-uploaded" ${this.postAsUploaded ? "checked" : ""}> Post as uploaded (not co-registered)</label></div>
-      <div class="layer-row"><label><input type="checkbox" id="shared-stretch" ${this.sharedStretch ? "checked" : ""}> One elevation stretch for both DSMs</label></div>
-      <button type="button" id="zoom-site">Zoom to site</button></details>`;
+    this.controlsBox.innerHTML = `<details ${open ? "open" : ""}><summary>${t("map.layers")}</summary>
+      <fieldset class="layer-row survey-view"><legend>${t("map.surveysShow")}</legend>${view("orthophoto", t("map.orthophoto"))}${view("dsm", t("map.dsm"))}</fieldset>${rows}
+      <div class="layer-row"><label><input type="checkbox" id="swipe-toggle" ${this.swipeOn ? "checked" : ""}> ${t("map.swipe")}</label></div>
+      <div class="layer-row"><label><input type="checkbox" id="post-as-uploaded" ${this.postAsUploaded ? "checked" : ""}> ${t("map.postAsUploaded")}</label></div>
+      <div class="layer-row"><label><input type="checkbox" id="shared-stretch" ${this.sharedStretch ? "checked" : ""}> ${t("map.sharedStretch")}</label></div>
+      <button type="button" id="zoom-site">${t("map.zoomToSite")}</button></details>`;
     this.controlsBox.querySelectorAll<HTMLInputElement>("input[data-layer]").forEach((input) =>
       input.addEventListener("change", () => this.setVisible(input.dataset.layer as LayerKey, input.checked)),
     );
@@ -375,7 +380,7 @@ export class MapView {
     const options = (Object.keys(SIDE_LABELS) as SwipeSide[])
       .map((side) => `<option value="${side}" ${side === chosen ? "selected" : ""}>${escapeHtml(t(SIDE_LABELS[side]))}</option>`)
       .join("");
-    return `<label class="swipe-side"><span class="visually-hidden">${escapeHtml(t("map.swipeSideOf", { layer: LABELS[key] }))}</span>
+    return `<label class="swipe-side"><span class="visually-hidden">${escapeHtml(t("map.swipeSideOf", { layer: t(LABELS[key]) }))}</span>
       <select data-side="${key}">${options}</select></label>`;
   }
 
@@ -429,7 +434,7 @@ export class MapView {
       if (!trajectory) continue;
       const geojson = await fetch(trajectory.download_url, { headers: authHeaders() }).then((r) => r.json());
       const line = L.geoJSON(geojson, { pane: "trajectories", style: { color: "#0ea5e9", weight: 2 } });
-      line.bindTooltip(`Flight of ${escapeHtml(survey.name)}`);
+      line.bindTooltip(t("map.flightOf", { name: escapeHtml(survey.name) }));
       trajectories.addLayer(line);
       bounds.extend(line.getBounds());
     }
@@ -527,7 +532,7 @@ export class MapView {
       const colours = productTileLayer(tileTemplate(site.id, owner, "dsm", range ?? undefined), info, side);
       colours.setOpacity(0.6); // the hillshade shows through the elevation colours
       group.addLayer(colours);
-      if (!this.sharedStretch && range) this.surveyLegends.append(forLayers(elevationLegend(range, side === "pre" ? "Pre DSM" : "Post DSM"), side));
+      if (!this.sharedStretch && range) this.surveyLegends.append(forLayers(elevationLegend(range, t(side === "pre" ? "map.preDsm" : "map.postDsm"), `elevation-${side}`), side));
     }
     if (this.sharedStretch && shared && asDsm.length) this.surveyLegends.append(forLayers(elevationLegend(shared), ...asDsm));
     if (done && owners.post) this.surveyLegends.append(forLayers(alignmentNote(done, corrected), "post"));
@@ -566,12 +571,12 @@ export class MapView {
     const survey = on ? this.readySurveys[this.timeIndex as number] : null;
     const when = survey ? formatDate(survey.captured_at, this.site?.timezone ?? "UTC") : "";
     const open = (this.timeBox.querySelector("details") as HTMLDetailsElement | null)?.open ?? false;
-    this.timeBox.innerHTML = `<details ${open ? "open" : ""}><summary>Time</summary>
-      <label><input type="checkbox" id="time-toggle" ${on ? "checked" : ""} ${n ? "" : "disabled"}> Step through the ${n} ready surveys</label>
-      <label class="time-range"><span class="visually-hidden">Survey shown</span>
+    this.timeBox.innerHTML = `<details ${open ? "open" : ""}><summary>${t("map.time")}</summary>
+      <label><input type="checkbox" id="time-toggle" ${on ? "checked" : ""} ${n ? "" : "disabled"}> ${t("map.stepThrough", { count: n })}</label>
+      <label class="time-range"><span class="visually-hidden">${t("map.surveyShown")}</span>
         <input type="range" id="time-range" min="0" max="${Math.max(0, n - 1)}" step="1" value="${this.timeIndex ?? Math.max(0, n - 1)}" ${on ? "" : "disabled"}
-          aria-valuetext="${survey ? `${escapeHtml(survey.name)}, ${when}` : "off"}"></label>
-      <p class="time-label" aria-live="polite">${survey ? `${escapeHtml(survey.name)} · ${escapeHtml(when)} (${(this.timeIndex as number) + 1} of ${n})` : ""}</p></details>`;
+          aria-valuetext="${survey ? `${escapeHtml(survey.name)}, ${when}` : t("map.off")}"></label>
+      <p class="time-label" aria-live="polite">${survey ? t("map.timeLabel", { name: escapeHtml(survey.name), date: escapeHtml(when), n: (this.timeIndex as number) + 1, count: n }) : ""}</p></details>`;
     (this.timeBox.querySelector("#time-toggle") as HTMLInputElement).addEventListener("change", (e) => {
       this.timeIndex = (e.target as HTMLInputElement).checked && n ? n - 1 : null;
       this.renderTime();
@@ -584,7 +589,7 @@ export class MapView {
       const shown = this.readySurveys[this.timeIndex];
       const label = this.timeBox.querySelector(".time-label") as HTMLElement;
       const date = formatDate(shown.captured_at, this.site?.timezone ?? "UTC");
-      label.textContent = `${shown.name} · ${date} (${this.timeIndex + 1} of ${n})`;
+      label.textContent = t("map.timeLabel", { name: shown.name, date, n: this.timeIndex + 1, count: n });
       range.setAttribute("aria-valuetext", `${shown.name}, ${date}`);
       void this.redraw();
     });
@@ -630,7 +635,7 @@ export class MapView {
     const history = element.querySelector<HTMLButtonElement>("button[data-history]");
     history?.addEventListener("click", async () => {
       const box = element.querySelector("[data-role=history]") as HTMLElement;
-      box.textContent = "Loading…";
+      box.textContent = t("common.loading");
       const url = `sites/${site.id}/comparisons/${comparison.id}/detections/${feature.id}/history`;
       // Written into the open popup (popup.update() would render its content anew).
       box.innerHTML = historyHtml(await getJson<HistoryEntry[]>(url), site.timezone);
@@ -639,9 +644,9 @@ export class MapView {
     copy?.addEventListener("click", async () => {
       try {
         await navigator.clipboard.writeText(copy.dataset.position ?? "");
-        copy.textContent = "Copied";
+        copy.textContent = t("map.copied");
       } catch {
-        copy.textContent = "Copy failed: select the text above";
+        copy.textContent = t("map.copyFailed");
       }
     });
     element.querySelectorAll<HTMLButtonElement>("button[data-verdict]").forEach((button) =>

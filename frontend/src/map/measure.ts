@@ -5,7 +5,8 @@
 
 import L from "leaflet";
 import { ApiError, postJson } from "../api";
-import { escapeHtml, formatArea, formatMetres, formatVolume } from "../format";
+import { escapeHtml, formatArea, formatMetres, formatVolume, percent } from "../format";
+import { type MessageKey, t } from "../i18n";
 import { type LonLat, pathLength, polygonArea, type ProfileData, profileSvg } from "./measureMath";
 
 export type MeasureKind = "distance" | "area" | "profile" | "volume";
@@ -29,11 +30,11 @@ interface VolumeAnswer {
 }
 
 const LINE_KINDS: MeasureKind[] = ["distance", "profile"];
-const TITLES: Record<MeasureKind, string> = {
-  distance: "Distance",
-  area: "Area",
-  profile: "Elevation profile",
-  volume: "Volume (pre → post)",
+const TITLES: Record<MeasureKind, MessageKey> = {
+  distance: "measure.distance",
+  area: "measure.area",
+  profile: "measure.profile",
+  volume: "measure.volume",
 };
 
 export class MeasureTool {
@@ -52,12 +53,12 @@ export class MeasureTool {
     this.box = L.DomUtil.create("div", "leaflet-bar map-measure");
     L.DomEvent.disableClickPropagation(this.box);
     L.DomEvent.disableScrollPropagation(this.box);
-    this.box.innerHTML = `<details><summary>Measure</summary>
+    this.box.innerHTML = `<details><summary>${t("measure.measure")}</summary>
       <div class="measure-buttons">${(Object.keys(TITLES) as MeasureKind[])
-        .map((k) => `<button type="button" data-measure="${k}">${TITLES[k]}</button>`)
+        .map((k) => `<button type="button" data-measure="${k}">${t(TITLES[k])}</button>`)
         .join("")}</div>
       <div class="measure-drawing" hidden><span data-role="hint"></span>
-        <button type="button" data-action="finish">Finish</button><button type="button" data-action="cancel">Cancel</button></div>
+        <button type="button" data-action="finish">${t("measure.finish")}</button><button type="button" data-action="cancel">${t("measure.cancel")}</button></div>
       <div class="measure-result" aria-live="polite"></div></details>`;
     this.result = this.box.querySelector(".measure-result") as HTMLElement;
     const control = new L.Control({ position: "topleft" });
@@ -86,8 +87,8 @@ export class MeasureTool {
     const drawing = this.box.querySelector(".measure-drawing") as HTMLElement;
     drawing.hidden = false;
     (drawing.querySelector("[data-role=hint]") as HTMLElement).textContent = LINE_KINDS.includes(kind)
-      ? "Click the points of the line; double-click or Finish to end."
-      : "Click the corners of the area; double-click or Finish to end.";
+      ? t("measure.lineHint")
+      : t("measure.areaHint");
   }
 
   /** Add a point (a click on the map, or a caller that knows where). */
@@ -121,15 +122,16 @@ export class MeasureTool {
     const isLine = LINE_KINDS.includes(kind);
     this.stop();
     if (ring.length < (isLine ? 2 : 3)) {
-      this.show(`<p>${isLine ? "A line needs two points" : "An area needs three corners"}: start again.</p>`);
+      this.show(`<p>${isLine ? t("measure.lineTooShort") : t("measure.areaTooSmall")}</p>`);
       this.drawn.clearLayers();
       return;
     }
-    if (kind === "distance") return this.show(`<p>Distance: <strong>${escapeHtml(formatMetres(pathLength(ring), 1))}</strong></p>`);
-    if (kind === "area") return this.show(`<p>Area: <strong>${escapeHtml(formatArea(polygonArea(ring)))}</strong></p>`);
+    const strong = (text: string) => `<strong>${escapeHtml(text)}</strong>`;
+    if (kind === "distance") return this.show(`<p>${t("measure.distanceIs", { value: strong(formatMetres(pathLength(ring), 1)) })}</p>`);
+    if (kind === "area") return this.show(`<p>${t("measure.areaIs", { value: strong(formatArea(polygonArea(ring))) })}</p>`);
     const context = this.context();
-    if (!context) return this.show("<p>Open a site first.</p>");
-    this.show("<p>Measuring…</p>");
+    if (!context) return this.show(`<p>${t("measure.openSite")}</p>`);
+    this.show(`<p>${t("measure.measuring")}</p>`);
     try {
       if (kind === "profile") await this.profile(context, ring);
       else await this.volume(context, ring);
@@ -140,31 +142,31 @@ export class MeasureTool {
 
   private async profile(context: MeasureContext, line: LonLat[]): Promise<void> {
     const owner = context.comparisonId !== null ? `comparisons/${context.comparisonId}` : context.surveyId !== null ? `surveys/${context.surveyId}` : null;
-    if (!owner) return this.show("<p>A profile needs a survey with a DSM on the map.</p>");
+    if (!owner) return this.show(`<p>${t("measure.profileNeedsDsm")}</p>`);
     const profile = await postJson<ProfileData>(`sites/${context.siteId}/${owner}/profile`, {
       line: { type: "LineString", coordinates: line },
       samples: 300,
     });
-    const of = context.comparisonId !== null ? "pre and post (co-registered)" : "the survey's DSM";
-    this.show(`<p>Profile of ${of}, ${escapeHtml(formatMetres(profile.length_m, 1))}</p>${profileSvg(profile)}`);
+    const title = context.comparisonId !== null ? "measure.profileOfPair" : "measure.profileOfSurvey";
+    this.show(`<p>${t(title, { length: escapeHtml(formatMetres(profile.length_m, 1)) })}</p>${profileSvg(profile)}`);
   }
 
   private async volume(context: MeasureContext, ring: LonLat[]): Promise<void> {
-    if (context.comparisonId === null) return this.show("<p>A volume needs a comparison: choose one first.</p>");
+    if (context.comparisonId === null) return this.show(`<p>${t("measure.volumeNeedsComparison")}</p>`);
     const closed = [...ring, ring[0]];
     const v = await postJson<VolumeAnswer>(`sites/${context.siteId}/comparisons/${context.comparisonId}/volume`, {
       polygon: { type: "Polygon", coordinates: [closed] },
     });
     const rows: Array<[string, string]> = [
-      ["Area", formatArea(v.area_m2)],
-      ["Cut (lost)", formatVolume(v.cut_m3)],
-      ["Fill (gained)", formatVolume(v.fill_m3)],
-      ["Net", `${v.net_m3 < 0 ? "−" : ""}${formatVolume(Math.abs(v.net_m3))}`],
-      ["Cut beyond the LoD", formatVolume(v.cut_beyond_lod_m3)],
-      ["Fill beyond the LoD", formatVolume(v.fill_beyond_lod_m3)],
-      ["LoD (95 %)", formatMetres(v.lod_m)],
+      [t("measure.area"), formatArea(v.area_m2)],
+      [t("measure.cut"), formatVolume(v.cut_m3)],
+      [t("measure.fill"), formatVolume(v.fill_m3)],
+      [t("measure.net"), `${v.net_m3 < 0 ? "−" : ""}${formatVolume(Math.abs(v.net_m3))}`],
+      [t("measure.cutBeyondLod"), formatVolume(v.cut_beyond_lod_m3)],
+      [t("measure.fillBeyondLod"), formatVolume(v.fill_beyond_lod_m3)],
+      [t("measure.lod", { level: percent(95) }), formatMetres(v.lod_m)],
     ];
-    const partial = v.measured_m2 < 0.95 * v.area_m2 ? `<p class="warning">Only ${formatArea(v.measured_m2)} of it has a Δh.</p>` : "";
+    const partial = v.measured_m2 < 0.95 * v.area_m2 ? `<p class="warning">${t("measure.partial", { area: formatArea(v.measured_m2) })}</p>` : "";
     this.show(
       `<table class="measure-volume">${rows.map(([k, val]) => `<tr><th scope="row">${escapeHtml(k)}</th><td>${escapeHtml(val)}</td></tr>`).join("")}</table>${partial}`,
     );

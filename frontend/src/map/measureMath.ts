@@ -1,6 +1,9 @@
 // The arithmetic of the map's measuring tools, apart from Leaflet so it can be tested:
 // lengths and areas on the ground, and the elevation profile drawn as an SVG chart.
 
+import { formatFixed } from "../format";
+import { t } from "../i18n";
+
 const EARTH_RADIUS_M = 6371008.8; // mean radius: lengths within 0.5 % anywhere
 
 export type LonLat = [number, number];
@@ -48,12 +51,15 @@ export interface ProfileData {
 
 const SERIES_COLOURS: Record<string, string> = { pre: "#2563eb", post: "#dc2626", dsm: "#374151" };
 
+/** Metres with one decimal, as the chart's axes write them. */
+const metres = (value: number) => t("unit.metres", { value: formatFixed(value, 1) });
+
 /** The profile as an SVG line chart (one line per DSM, gaps where it has no height), with
  * its height range and length written on it. */
 export function profileSvg(profile: ProfileData, width = 300, height = 140): string {
   const pad = { left: 44, right: 8, top: 8, bottom: 22 };
   const values = Object.values(profile.heights_m).flat().filter((v): v is number => v != null);
-  if (!values.length) return `<p>No height along this line.</p>`;
+  if (!values.length) return `<p>${t("measure.noHeight")}</p>`;
   let low = Math.min(...values);
   let high = Math.max(...values);
   if (high - low < 0.5) [low, high] = [(low + high) / 2 - 0.25, (low + high) / 2 + 0.25];
@@ -76,12 +82,12 @@ export function profileSvg(profile: ProfileData, width = 300, height = 140): str
   const legend = Object.keys(profile.heights_m)
     .map((name, i) => `<text x="${pad.left + 6 + i * 44}" y="${pad.top + 10}" fill="${SERIES_COLOURS[name] ?? "#111"}" font-size="10">${name}</text>`)
     .join("");
-  return `<svg class="profile-chart" viewBox="0 0 ${width} ${height}" width="${width}" height="${height}" role="img" aria-label="Elevation profile, ${profile.length_m.toFixed(1)} m">
+  return `<svg class="profile-chart" viewBox="0 0 ${width} ${height}" width="${width}" height="${height}" role="img" aria-label="${t("measure.chart", { length: metres(profile.length_m) })}">
     <rect x="${pad.left}" y="${pad.top}" width="${width - pad.left - pad.right}" height="${height - pad.top - pad.bottom}" fill="#f8fafc" stroke="#cbd5e1"/>
     ${lines.join("")}${legend}
-    <text x="${pad.left - 4}" y="${pad.top + 8}" text-anchor="end" font-size="10">${high.toFixed(1)} m</text>
-    <text x="${pad.left - 4}" y="${height - pad.bottom}" text-anchor="end" font-size="10">${low.toFixed(1)} m</text>
+    <text x="${pad.left - 4}" y="${pad.top + 8}" text-anchor="end" font-size="10">${metres(high)}</text>
+    <text x="${pad.left - 4}" y="${height - pad.bottom}" text-anchor="end" font-size="10">${metres(low)}</text>
     <text x="${pad.left}" y="${height - 6}" font-size="10">0</text>
-    <text x="${width - pad.right}" y="${height - 6}" text-anchor="end" font-size="10">${profile.length_m.toFixed(1)} m</text>
+    <text x="${width - pad.right}" y="${height - 6}" text-anchor="end" font-size="10">${metres(profile.length_m)}</text>
   </svg>`;
 }
