@@ -26,6 +26,7 @@ file leaves no tiles of the old one behind (`keep_only`).
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
 import tempfile
@@ -192,6 +193,28 @@ class DiskTileCache:
 
     def contains(self, key: TileKey) -> bool:
         return self.path(key).is_file()
+
+    def _note_path(self, group: str, identity: FileIdentity, name: str) -> Path:
+        return self._group_folder(group) / _identity_name(identity) / f"{name}.json"
+
+    def get_note(self, group: str, identity: FileIdentity, name: str) -> object | None:
+        """What was noted about a file beside its tiles (its default stretch), or None."""
+        try:
+            return json.loads(self._note_path(group, identity, name).read_text())
+        except (OSError, ValueError):
+            return None
+
+    def put_note(self, group: str, identity: FileIdentity, name: str, value: object) -> None:
+        """Note `value` (JSON) beside the file's tiles; it goes with them."""
+        path = self._note_path(group, identity, name)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".part")
+            with os.fdopen(handle, "w") as out:
+                json.dump(value, out)
+            os.replace(temporary, path)
+        except OSError:
+            return
 
     def get(self, key: TileKey) -> bytes | None:
         path = self.path(key)

@@ -45,10 +45,10 @@ from backend.services.tiles import (
     LayerSpec,
     TileOutsideBounds,
     TileTooCostly,
-    default_rescale,
     is_geotiff,
     layer_info,
     render_tile,
+    stored_default_rescale,
     stretched,
     tile_key,
 )
@@ -118,7 +118,11 @@ def _layer(
     info = layer_info(path)
     levels = bounded_levels(info, settings.tile_prerender_max_tiles)
     rescale = (
-        default_rescale(spec, path, settings.tile_max_read_pixels) if stretched(spec) else None
+        stored_default_rescale(
+            _disk_cache(settings), group, spec, path, settings.tile_max_read_pixels
+        )
+        if stretched(spec)
+        else None
     )
     return PrerenderLayer(
         group=group,

@@ -48,7 +48,7 @@ from scipy import ndimage
 
 from backend.geotiff import NotGeoTiff, is_geotiff, open_geotiff
 from backend.services.post_motion import PostMotion, moved_image
-from backend.services.tile_cache import FileIdentity, TileKey, file_identity
+from backend.services.tile_cache import DiskTileCache, FileIdentity, TileKey, file_identity
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 WEB_MERCATOR = CRS.from_epsg(3857)
@@ -243,8 +243,44 @@ def known_default_rescale(
 ) -> tuple[float, float] | None:
     """`default_rescale` if this process knows the file's stats already (no file read),
     else None."""
+    with _STRETCHES_LOCK:
+        stretch = _STRETCHES.get((identity, spec.name, max_read_pixels))
+    if stretch is not None:
+        return stretch
     stats = _STATS.peek(identity, max_read_pixels)
     return None if stats is None else _default_rescale(spec, stats)
+
+
+# Default stretches this process has read from the notes beside the tiles.
+_STRETCHES: OrderedDict[tuple[FileIdentity, str, int], tuple[float, float]] = OrderedDict()
+_STRETCHES_LOCK = threading.Lock()
+
+
+def stored_default_rescale(
+    disk: DiskTileCache | None,
+    group: str,
+    spec: LayerSpec,
+    path: Path,
+    max_read_pixels: int = DEFAULT_MAX_READ_PIXELS,
+) -> tuple[float, float]:
+    """`default_rescale`, noted beside the file's tiles on disk by whoever reads it first
+    (the worker rendering ahead, mostly), so that a process that starts asks the note (a
+    file of a few bytes) rather than the raster (a read of its overview, 0.2-0.3 s under
+    load, which the first tiles of each layer waited for)."""
+    identity = file_identity(path)
+    name = f"stretch-{spec.name}-{max_read_pixels}"
+    note = disk.get_note(group, identity, name) if disk is not None else None
+    if isinstance(note, list) and len(note) == 2:
+        stretch = float(note[0]), float(note[1])
+    else:
+        stretch = default_rescale(spec, path, max_read_pixels)
+        if disk is not None:
+            disk.put_note(group, identity, name, list(stretch))
+    with _STRETCHES_LOCK:
+        _STRETCHES[(identity, spec.name, max_read_pixels)] = stretch
+        while len(_STRETCHES) > 256:
+            _STRETCHES.popitem(last=False)
+    return stretch
 
 
 def stretched(spec: LayerSpec) -> bool:

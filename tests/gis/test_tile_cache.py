@@ -28,19 +28,24 @@ from uvicorn.protocols.http.auto import AutoHTTPProtocol
 from backend.api.http_protocol import NoDelayHTTPProtocol
 from backend.config import Settings
 from backend.db.models import Product
+from backend.services import tiles as tiles_module
 from backend.services.tile_cache import (
     DiskTileCache,
     FileIdentity,
     TileCache,
     TileKey,
     etag_matches,
+    file_identity,
 )
 from backend.services.tile_prerender import bounded_levels, level_tiles
 from backend.services.tiles import (
     SURVEY_LAYERS,
     LayerInfo,
+    default_rescale,
     encode_rgba_png,
+    known_default_rescale,
     raster_stats,
+    stored_default_rescale,
     tile_read_pixels,
 )
 from tests.api_helpers import upload_dsm
@@ -234,6 +239,23 @@ def test_a_tile_read_is_bounded_by_overviews_and_its_footprint(tmp_path: Path) -
     stats = raster_stats(without, max_read_pixels=256**2)
     assert np.isfinite([stats.p2, stats.p98]).all() and stats.p98 - stats.p2 < 512
     assert raster_stats(without).p98 - raster_stats(without).p2 > 3000
+
+
+def test_a_default_stretch_is_read_once_and_noted_beside_the_tiles(tmp_path: Path) -> None:
+    dsm = _plain_tiff(tmp_path / "dsm.tif", 512, overviews=True)
+    disk = DiskTileCache(tmp_path / "tiles", max_bytes=10_000)
+    spec = SURVEY_LAYERS["dsm"]
+    stretch = stored_default_rescale(disk, "surveys/1", spec, dsm)
+    assert stretch == default_rescale(spec, dsm) and stretch[0] < stretch[1]
+    [note] = (tmp_path / "tiles").glob("surveys-1/*/stretch-dsm-*.json")
+    # A process that starts takes the note, not the raster.
+    note.write_text("[1.5, 2.5]")
+    tiles_module._STRETCHES.clear()
+    assert stored_default_rescale(disk, "surveys/1", spec, dsm) == (1.5, 2.5)
+    assert known_default_rescale(spec, file_identity(dsm)) == (1.5, 2.5)
+    disk.forget_groups(["surveys/1"])
+    tiles_module._STRETCHES.clear()
+    assert stored_default_rescale(disk, "surveys/1", spec, dsm) == stretch
 
 
 def _key(z: int) -> TileKey:

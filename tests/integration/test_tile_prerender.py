@@ -3,6 +3,7 @@ the API reads: the first request of a tile is a cache hit with the very bytes a 
 gives, and deleting the comparison or the survey removes its tiles (embedded default, a
 small pair: seconds)."""
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -87,6 +88,9 @@ def test_a_worker_renders_the_tiles_ahead_and_deleting_removes_them(
     assert answer.content == fresh
     low, high = client.get(f"{base}/tilejson.json", headers=auth).json()["rescale"]
     assert (low, high) == dh.rescale and low == -high
+    # Noted beside the tiles: an API process that starts does not read the raster for it.
+    [note] = (settings.tile_cache_dir / f"comparisons-{comparison}").glob("*/stretch-dh-*.json")
+    assert tuple(json.loads(note.read_text())) == (low, high)
     page = client.get(
         f"{base}/{tile.z}/{tile.x}/{tile.y}.png?rescale={low:.3f},{high:.3f}", headers=auth
     )

@@ -46,12 +46,12 @@ from backend.services.tiles import (
     TileTooCostly,
     WmtsLayer,
     check_colormap,
-    default_rescale,
     is_geotiff,
     known_default_rescale,
     layer_info,
     parse_rescale,
     render_tile,
+    stored_default_rescale,
     stretched,
     tile_key,
     wmts_capabilities,
@@ -196,20 +196,25 @@ async def _tile(
     spec = source.spec
     settings: Settings = request.app.state.settings
     identity = file_identity(source.path)
+    group = group_name(source.owner, source.owner_id) if moved_by is None else moved_by
+    cache = _tile_cache(request)
     if stretch is None and stretched(spec):
         # The default stretch is resolved before the key: the page asks for it by its
         # numbers, a GIS by none, and both get the one tile (rendered ahead by a worker).
         stretch = known_default_rescale(
             spec, identity, settings.tile_max_read_pixels
         ) or await run_in_threadpool(
-            default_rescale, spec, source.path, settings.tile_max_read_pixels
+            stored_default_rescale,
+            cache.disk,
+            group,
+            spec,
+            source.path,
+            settings.tile_max_read_pixels,
         )
-    group = group_name(source.owner, source.owner_id) if moved_by is None else moved_by
     key = tile_key(identity, spec, z, x, y, stretch, name, group, motion)
     headers = {"Cache-Control": TILE_CACHE_CONTROL, "ETag": key.etag}
     if etag_matches(request.headers.get("if-none-match"), key.etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
-    cache = _tile_cache(request)
     png = cache.get_memory(key)
     if png is None and cache.disk is not None:
         png = await run_in_threadpool(cache.get_disk, key)
@@ -272,7 +277,9 @@ async def _tilejson(source: LayerSource, request: Request) -> dict:
         if source.spec.default_colormap is None
         else list(
             await run_in_threadpool(
-                default_rescale,
+                stored_default_rescale,
+                _tile_cache(request).disk,
+                group_name(source.owner, source.owner_id),
                 source.spec,
                 source.path,
                 request.app.state.settings.tile_max_read_pixels,
