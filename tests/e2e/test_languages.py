@@ -49,6 +49,14 @@ def compared_site(app: App, pair: DsmPairPaths) -> int:
         return site["id"]
 
 
+def report_languages(app: App, site: int) -> list[str | None]:
+    """The language of each report of the site, as the API lists them."""
+    with httpx.Client(base_url=f"{app.url}/api/v1", timeout=60) as api:
+        token = api.post("/auth/sign-in", json=USER).json()["token"]
+        api.headers["Authorization"] = f"Bearer {token}"
+        return [r["language"] for r in api.get(f"/sites/{site}/reports").json()]
+
+
 def page_shot(page: Page, name: str) -> None:
     """The whole window as a test artifact, and into the docs when asked for."""
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
@@ -96,6 +104,13 @@ def test_the_page_switches_to_japanese_and_back(
     expect(popup).to_contain_text("面積")
     expect(popup.get_by_role("button", name="地すべりと確認")).to_be_visible()
     page_shot(page, "page-site-ja")
+    # A report made from the Japanese page is written in Japanese (the site's is English).
+    page.locator("#reports-section summary").click()
+    page.get_by_role("button", name="報告書を今すぐ作成").click()
+    deadline = time.monotonic() + 30
+    while report_languages(app_server, site) != ["ja"]:
+        assert time.monotonic() < deadline, report_languages(app_server, site)
+        time.sleep(0.5)
 
     # Kept over a reload, and on every page.
     page.reload()

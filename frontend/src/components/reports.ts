@@ -3,7 +3,7 @@
 
 import { getJson, postJson } from "../api";
 import { escapeHtml, formatDateTime } from "../format";
-import { t } from "../i18n";
+import { currentLanguage, t } from "../i18n";
 import { download, failure } from "./tools";
 
 export interface Report {
@@ -49,6 +49,8 @@ export class ReportsPanel {
     private readonly box: HTMLElement,
     private readonly siteId: number,
     private readonly timeZone: string,
+    /** Languages the server writes reports in: a report made here is in the page's when it is one. */
+    private readonly reportLanguages: readonly string[] = [],
   ) {
     box.innerHTML = `<p class="muted" id="report-for"></p>
       <button type="button" id="make-report">${t("reports.make")}</button>
@@ -76,7 +78,8 @@ export class ReportsPanel {
   async make(): Promise<void> {
     (this.box.querySelector("#report-error") as HTMLElement).textContent = "";
     try {
-      await postJson<Report>(`sites/${this.siteId}/reports`, { comparison_id: this.comparisonId });
+      const language = this.reportLanguages.includes(currentLanguage()) ? currentLanguage() : undefined;
+      await postJson<Report>(`sites/${this.siteId}/reports`, { comparison_id: this.comparisonId, language });
       await this.load();
     } catch (e) {
       this.fail(e);

@@ -127,7 +127,12 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
     }),
   );
   const state: State = { site, surveys: [], comparisons: [], shown: null };
-  const reports = new ReportsPanel($("reports"), siteId, site.timezone);
+  const reports = new ReportsPanel(
+    $("reports"),
+    siteId,
+    site.timezone,
+    reportLanguages.map((l) => l.code),
+  );
   const downloads = new DownloadsPanel($("downloads"), siteId, site.timezone);
   const gis = new GisPanel($("gis"), siteId);
   const schedules = new SchedulesPanel($("schedules"), siteId, site.timezone);
