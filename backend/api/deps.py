@@ -17,7 +17,10 @@ from backend.storage import LocalStorage
 Owned = TypeVar("Owned")
 
 
-def get_settings_dep(request: Request) -> Settings:
+# The dependencies that only read the app's state are coroutines: FastAPI runs a plain
+# function in its thread pool, a hop that costs more than the read (a map tile asks for
+# several of them).
+async def get_settings_dep(request: Request) -> Settings:
     return request.app.state.settings
 
 
@@ -39,11 +42,11 @@ def get_session(request: Request) -> Iterator[Session]:
         session.close()
 
 
-def get_storage(request: Request) -> LocalStorage:
+async def get_storage(request: Request) -> LocalStorage:
     return request.app.state.storage
 
 
-def get_celery(request: Request) -> Celery:
+async def get_celery(request: Request) -> Celery:
     return request.app.state.celery
 
 
