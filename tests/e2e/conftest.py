@@ -8,10 +8,12 @@ map pictures are written there too.
 
 import os
 import socket
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import httpx
 import pytest
 from playwright.sync_api import Browser, Page, Playwright, expect, sync_playwright
 
@@ -157,3 +159,33 @@ def dsm_pair(tmp_path_factory: pytest.TempPathFactory) -> DsmPairPaths:
     """A seeded pre/post pair with a planted landslide and a 1.3 m × 0.7 m shift."""
     pair = make_dsm_pair(shape=(240, 240), pixel_size_m=1.0, shift_m=(1.3, -0.7, 0.2), seed=7)
     return write_dsm_pair(pair, tmp_path_factory.mktemp("e2e-pair"))
+
+
+def compare_uploaded(
+    api: httpx.Client, site_id: int, surveys: list[tuple[Path, str, str | None]]
+) -> int:
+    """Upload two DSM surveys (file, capture time, name) to a site over the API, compare
+    them with `threshold` and wait for the comparison to succeed; its id."""
+    ids = []
+    for path, captured_at, name in surveys:
+        params = {"captured_at": captured_at, "filename": path.name}
+        if name is not None:
+            params["name"] = name
+        made = api.post(
+            f"/sites/{site_id}/surveys",
+            params=params,
+            content=path.read_bytes(),
+            headers={"Content-Type": "image/tiff"},
+        )
+        assert made.status_code == 201, made.text
+        ids.append(made.json()["id"])
+    created = api.post(
+        f"/sites/{site_id}/comparisons",
+        json={"pre_survey_id": ids[0], "post_survey_id": ids[1], "method": "threshold"},
+    ).json()
+    comparison = created["comparison"]["id"]
+    deadline = time.monotonic() + 120
+    while api.get(f"/sites/{site_id}/comparisons/{comparison}").json()["status"] != "succeeded":
+        assert time.monotonic() < deadline, "the comparison did not finish"
+        time.sleep(0.5)
+    return comparison

@@ -8,7 +8,7 @@ import time
 import httpx
 from playwright.sync_api import Browser, Page, expect
 
-from tests.e2e.conftest import ARTIFACTS, LAPTOP, REPO, USER, App
+from tests.e2e.conftest import ARTIFACTS, LAPTOP, REPO, USER, App, compare_uploaded
 from tests.e2e.test_map import sign_in
 from worker.simulator.dsm_pair import DsmPairPaths
 
@@ -22,30 +22,14 @@ def compared_site(app: App, pair: DsmPairPaths) -> int:
         token = api.post("/auth/sign-in", json=USER).json()["token"]
         api.headers["Authorization"] = f"Bearer {token}"
         site = api.post("/sites", json={"name": SITE, "timezone": "Asia/Tokyo"}).json()
-        surveys = []
-        for path, name, at in (
-            (pair.pre, "June flight", "2026-06-01T01:00:00Z"),
-            (pair.post, "July flight", "2026-07-01T01:00:00Z"),
-        ):
-            made = api.post(
-                f"/sites/{site['id']}/surveys",
-                params={"captured_at": at, "name": name, "filename": path.name},
-                content=path.read_bytes(),
-                headers={"Content-Type": "image/tiff"},
-            )
-            assert made.status_code == 201, made.text
-            surveys.append(made.json()["id"])
-        created = api.post(
-            f"/sites/{site['id']}/comparisons",
-            json={"pre_survey_id": surveys[0], "post_survey_id": surveys[1], "method": "threshold"},
-        ).json()
-        comparison = created["comparison"]["id"]
-        deadline = time.monotonic() + 120
-        while (
-            api.get(f"/sites/{site['id']}/comparisons/{comparison}").json()["status"] != "succeeded"
-        ):
-            assert time.monotonic() < deadline, "the comparison did not finish"
-            time.sleep(0.5)
+        compare_uploaded(
+            api,
+            site["id"],
+            [
+                (pair.pre, "2026-06-01T01:00:00Z", "June flight"),
+                (pair.post, "2026-07-01T01:00:00Z", "July flight"),
+            ],
+        )
         return site["id"]
 
 

@@ -9,7 +9,6 @@ the browser time goes to the panels themselves.
 
 import os
 import re
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -22,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from backend.db.session import make_engine
 from backend.services.users import create_user
-from tests.e2e.conftest import ARTIFACTS, REPO, USER, App
+from tests.e2e.conftest import ARTIFACTS, REPO, USER, App, compare_uploaded
 from tests.e2e.test_map import sign_in
 from tests.monitoring_helpers import WebhookReceiver
 from worker.simulator.dsm_pair import DsmPairPaths
@@ -53,30 +52,14 @@ def compared_site(app_server: App, dsm_pair: DsmPairPaths) -> Iterator[ComparedS
         token = api.post("/auth/sign-in", json=USER).json()["token"]
         api.headers["Authorization"] = f"Bearer {token}"
         site = api.post("/sites", json={"name": "Tools slope", "timezone": TIME_ZONE}).json()
-        surveys = []
-        for path, at in (
-            (dsm_pair.pre, "2026-06-01T10:00:00Z"),
-            (dsm_pair.post, "2026-07-01T10:00:00Z"),
-        ):
-            made = api.post(
-                f"/sites/{site['id']}/surveys",
-                params={"captured_at": at, "filename": path.name},
-                content=path.read_bytes(),
-                headers={"Content-Type": "image/tiff"},
-            )
-            assert made.status_code == 201, made.text
-            surveys.append(made.json()["id"])
-        created = api.post(
-            f"/sites/{site['id']}/comparisons",
-            json={"pre_survey_id": surveys[0], "post_survey_id": surveys[1], "method": "threshold"},
-        ).json()
-        comparison = created["comparison"]["id"]
-        deadline = time.monotonic() + 120
-        while (
-            api.get(f"/sites/{site['id']}/comparisons/{comparison}").json()["status"] != "succeeded"
-        ):
-            assert time.monotonic() < deadline, "the comparison did not finish"
-            time.sleep(0.5)
+        comparison = compare_uploaded(
+            api,
+            site["id"],
+            [
+                (dsm_pair.pre, "2026-06-01T10:00:00Z", None),
+                (dsm_pair.post, "2026-07-01T10:00:00Z", None),
+            ],
+        )
         features = api.get(f"/sites/{site['id']}/comparisons/{comparison}/detections").json()
         labels = [f["properties"]["label"] for f in features["features"]]
         assert labels == list(range(1, len(labels) + 1)) and labels
