@@ -1,6 +1,7 @@
-// The REST API with the signed-in token; errors carry the server's plain-words reason.
+// The REST API with the signed-in token; errors carry the server's plain-words reason
+// (in English: on a page in another language, after a lead in that language).
 
-import { currentLocale, t } from "./i18n";
+import { currentLocale, type MessageKey, speaksServerLanguage, t } from "./i18n";
 import type { MapConfig } from "./types";
 
 const TOKEN_KEY = "slidewatch.token";
@@ -15,7 +16,8 @@ export class ApiError extends Error {
   }
 }
 
-export function errorMessage(body: unknown, status: number): string {
+/** The server's words in an error's body (its `detail`); null when it gave none. */
+function detailText(body: unknown): string | null {
   const detail = (body as { detail?: unknown } | null)?.detail;
   if (typeof detail === "string") return detail;
   if (Array.isArray(detail)) {
@@ -24,7 +26,31 @@ export function errorMessage(body: unknown, status: number): string {
       .map((d: { loc?: unknown[]; msg?: string }) => `${(d.loc ?? []).slice(1).join(".")}: ${d.msg ?? ""}`)
       .join("; ");
   }
-  return t("error.serverAnswered", { status });
+  return null;
+}
+
+/** What kind of refusal an HTTP status is, as the lead of the server's words. */
+export function statusLead(status: number): MessageKey {
+  if (status === 400 || status === 415 || status === 422) return "error.invalid";
+  if (status === 401) return "error.signInAgain";
+  if (status === 403) return "error.forbidden";
+  if (status === 404 || status === 410) return "error.notFound";
+  if (status === 409 || status === 412) return "error.conflict";
+  if (status === 413) return "error.tooLarge";
+  if (status === 429) return "error.tooMany";
+  if (status === 503) return "error.unavailable";
+  if (status >= 500) return "error.server";
+  return "error.refused";
+}
+
+/** An error of the API in words: the server's own (English), as they are on an English
+ * page; on a page in another language, after a lead in it that says what kind of
+ * refusal it is (by the status), so that the reader knows what happened. */
+export function errorMessage(body: unknown, status: number): string {
+  const detail = detailText(body);
+  if (speaksServerLanguage()) return detail ?? t("error.serverAnswered", { status });
+  const lead = t(statusLead(status));
+  return detail === null ? t("error.withStatus", { lead, status }) : t("error.withDetail", { lead, detail });
 }
 
 export const session = {

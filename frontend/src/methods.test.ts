@@ -1,4 +1,5 @@
 import { describe, expect, it } from "vitest";
+import { useLocale } from "./i18n";
 import { detectionText, methodOptionsHtml, methodSummary } from "./methods";
 import type { DetectionMethod } from "./types";
 
@@ -22,6 +23,15 @@ describe("methods", () => {
   it("give the chosen method's one line", () => {
     expect(methodSummary(methods, "threshold")).toBe("The LoD method.");
     expect(methodSummary(methods, "magic")).toBe("");
+  });
+
+  it("give it in Japanese on a Japanese page, and the server's words for a method it does not know", () => {
+    useLocale("ja-JP");
+    expect(methodSummary(methods, "threshold")).toMatch(/^LoD 法：画素ごとの検出限界（LoD95/);
+    expect(methodSummary(methods, "cnn")).toMatch(/^SlideNet：前時期・後時期の両 DSM/);
+    const later = [...methods, { name: "lidar", summary: "Added on the server later.", stages: [], default: false }];
+    expect(methodSummary(later, "lidar")).toBe("Added on the server later.");
+    expect(methodSummary(later, "magic")).toBe("");
   });
 
   it("say the LoD and the model a comparison used", () => {

@@ -3,7 +3,7 @@
 // the form's default is the API's and the CLI's.
 
 import { escapeHtml, formatMetres, formatNumber } from "./format";
-import { t } from "./i18n";
+import { serverWords, t } from "./i18n";
 import type { ComparisonDetection, DetectionMethod } from "./types";
 
 /** The `<option>`s of the method `<select>`, the default one selected and labelled so. */
@@ -16,8 +16,11 @@ export function methodOptionsHtml(methods: DetectionMethod[]): string {
     .join("");
 }
 
+/** The chosen method's one line, in the page's language (the server's words for a method
+ * the catalogue does not know). */
 export function methodSummary(methods: DetectionMethod[], name: string): string {
-  return methods.find((m) => m.name === name)?.summary ?? "";
+  const method = methods.find((m) => m.name === name);
+  return method ? serverWords(`method.${method.name}`, method.summary) : "";
 }
 
 /** "LoD 0.12 m (0.08–0.20 m, heteroscedastic) · model scorer-default@1": the level of

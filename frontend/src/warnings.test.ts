@@ -1,4 +1,5 @@
-import { expect, it } from "vitest";
+import { beforeEach, describe, expect, it } from "vitest";
+import { useLocale } from "./i18n";
 import type { QualityCheck, SurveyQuality } from "./types";
 import {
   comparisonWarningsHtml,
@@ -96,4 +97,40 @@ it("lists a comparison's warnings about its surveys' quality", () => {
   box.innerHTML = comparisonWarningsHtml([warning]);
   expect(box.querySelector("summary")?.textContent).toBe("Its surveys missed a quality bound: the changes are less sure");
   expect(box.querySelector("li")?.textContent).toBe(warning);
+});
+
+describe("on a Japanese page", () => {
+  beforeEach(() => useLocale("ja-JP"));
+
+  it("titles the server's warnings in Japanese and marks them as its English words", () => {
+    const box = document.createElement("div");
+    box.innerHTML = fileWarningsHtml([{ name: "flight.SRT", warnings: [skipped] }]);
+    expect(box.querySelector("p")?.textContent).toBe("flight.SRT の読み込みで 1 件の警告がありました：");
+    expect(box.querySelector(".server-original")?.textContent).toBe("各警告はサーバーが出力した原文（英語）です：");
+    expect(box.querySelector("ul")?.getAttribute("lang")).toBe("en");
+    expect(box.querySelector("li")?.textContent).toBe(skipped);
+    box.innerHTML = surveyWarningsHtml([skipped]);
+    expect(box.querySelector(".server-original")).not.toBeNull();
+    expect(box.querySelector("li")?.textContent).toBe(skipped);
+    box.innerHTML = comparisonWarningsHtml([outliers]);
+    expect(box.querySelector(".server-original")).not.toBeNull();
+  });
+
+  it("names a missed check in Japanese, with the server's message behind it", () => {
+    const quality: SurveyQuality = {
+      passed: false,
+      checks: [check("segments_dropped", true, "All 2 segments placed"), check("georeference_residual", false, residual)],
+    };
+    expect(qualitySummary(quality)).toBe("品質基準を満たしていません：復元したカメラ位置と GPS 記録の差");
+    const box = document.createElement("div");
+    box.innerHTML = surveyQualityHtml(quality);
+    const missed = box.querySelectorAll(".survey-quality li")[1];
+    expect(missed.textContent?.replace(/\s+/g, " ").trim()).toBe(`未達： 復元したカメラ位置と GPS 記録の差：${residual}`);
+    expect(missed.querySelector("span[lang=en]")?.textContent).toBe(residual);
+  });
+
+  it("shows the server's message for a check it does not know", () => {
+    const later = { ...check("segments_dropped", false, "A check added later"), name: "sharpness" as QualityCheck["name"] };
+    expect(qualitySummary({ passed: false, checks: [later] })).toBe("品質基準を満たしていません：A check added later");
+  });
 });

@@ -3,8 +3,8 @@
 // and a survey's quality verdict (`quality`) when it missed its bounds.
 
 import { escapeHtml } from "./format";
-import { t } from "./i18n";
-import type { SurveyQuality } from "./types";
+import { serverWords, speaksServerLanguage, t } from "./i18n";
+import type { QualityCheck, SurveyQuality } from "./types";
 
 /** A warning as shown under its file, naming the file: the flight-log readers begin with
  * it ("flight.SRT: 3 of 546 blocks unreadable and skipped (line 11: …)"); a warning that
@@ -12,6 +12,17 @@ import type { SurveyQuality } from "./types";
 export function fileWarningText(fileName: string, warning: string): string {
   const named = warning.startsWith(`${fileName}:`) || warning.startsWith(`${fileName},`);
   return named ? warning : `${fileName}: ${warning}`;
+}
+
+/** On a page in another language than the server's: the note that the warnings listed
+ * are the server's own words, in English ("" on an English page). */
+function originalNote(): string {
+  return speaksServerLanguage() ? "" : `<p class="muted server-original">${t("warnings.serverOriginal")}</p>`;
+}
+
+/** A list of the server's words, marked as English for the browser and screen readers. */
+function serverList(items: readonly string[]): string {
+  return `<ul lang="en">${items.map((w) => `<li>${escapeHtml(w)}</li>`).join("")}</ul>`;
 }
 
 /** "1 warning", "3 warnings". */
@@ -26,7 +37,7 @@ export function fileWarningsHtml(files: ReadonlyArray<{ name: string; warnings: 
     .map(
       (f) => `<div class="notice file-warnings" role="note" data-file="${escapeHtml(f.name)}">
         <p>${t("warnings.fileReadWith", { file: `<strong>${escapeHtml(f.name)}</strong>`, warnings: warningCount(f.warnings.length) })}</p>
-        <ul>${f.warnings.map((w) => `<li>${escapeHtml(fileWarningText(f.name, w))}</li>`).join("")}</ul></div>`,
+        ${originalNote()}${serverList(f.warnings.map((w) => fileWarningText(f.name, w)))}</div>`,
     )
     .join("");
 }
@@ -37,8 +48,12 @@ export function surveyWarningsHtml(warnings: readonly string[]): string {
   if (!warnings.length) return "";
   return `<details class="notice survey-warnings">
       <summary>${t("warnings.surveyReadWith", { warnings: warningCount(warnings.length) })}</summary>
-      <ul>${warnings.map((w) => `<li>${escapeHtml(w)}</li>`).join("")}</ul></details>`;
+      ${originalNote()}${serverList(warnings)}</details>`;
 }
+
+/** A quality check by its name in the page's language; its message (the server's words)
+ * on an English page, and for a check the catalogue does not know. */
+const checkWords = (check: QualityCheck) => serverWords(`quality.${check.name}`, check.message);
 
 /** The line a survey that missed its quality bounds shows in sight: the first failed
  * check's message, and how many more failed; null when it passed or has no verdict yet. */
@@ -46,7 +61,7 @@ export function qualitySummary(quality: SurveyQuality | null | undefined): strin
   const failed = quality?.checks.filter((c) => !c.passed) ?? [];
   if (!quality || quality.passed || !failed.length) return null;
   const more = failed.length > 1 ? t("warnings.andMore", { count: failed.length - 1 }) : "";
-  return t("warnings.missedBounds", { message: failed[0].message, more });
+  return t("warnings.missedBounds", { message: checkWords(failed[0]), more });
 }
 
 /** A survey's quality verdict in its row: nothing while it passed, else a mark with the
@@ -57,7 +72,7 @@ export function surveyQualityHtml(quality: SurveyQuality | null | undefined): st
   const checks = quality.checks
     .map(
       (c) => `<li class="${c.passed ? "check-passed" : "check-failed"}" data-check="${escapeHtml(c.name)}">
-        <strong>${c.passed ? t("warnings.met") : t("warnings.missed")}</strong> ${escapeHtml(c.message)}</li>`,
+        <strong>${c.passed ? t("warnings.met") : t("warnings.missed")}</strong> ${checkLineHtml(c)}</li>`,
     )
     .join("");
   return `<details class="notice survey-quality" role="note">
@@ -65,10 +80,20 @@ export function surveyQualityHtml(quality: SurveyQuality | null | undefined): st
       <ul>${checks}</ul></details>`;
 }
 
+/** A check's line after its mark: its message; on a page in another language, the check
+ * by its name in that language first, its message as the server's English after it. */
+function checkLineHtml(check: QualityCheck): string {
+  const message = escapeHtml(check.message);
+  if (speaksServerLanguage()) return message;
+  const name = checkWords(check);
+  const original = `<span lang="en">${message}</span>`;
+  return name === check.message ? original : t("warnings.checkLine", { check: escapeHtml(name), message: original });
+}
+
 /** A comparison's warnings (each quality check its surveys missed) under its row. */
 export function comparisonWarningsHtml(warnings: readonly string[] | undefined): string {
   if (!warnings?.length) return "";
   return `<details class="notice comparison-warnings" role="note">
       <summary>${t("warnings.comparisonMissed", { count: warnings.length })}</summary>
-      <ul>${warnings.map((w) => `<li>${escapeHtml(w)}</li>`).join("")}</ul></details>`;
+      ${originalNote()}${serverList(warnings)}</details>`;
 }

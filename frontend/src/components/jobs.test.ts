@@ -1,6 +1,7 @@
 import { afterEach, expect, it, vi } from "vitest";
 import type { Job } from "../types";
-import { JobsPanel } from "./jobs";
+import { useLocale } from "../i18n";
+import { JobsPanel, jobTitle } from "./jobs";
 
 const failed: Job = {
   id: 7, site_id: 1, kind: "comparison", comparison_id: 3, survey_id: null, state: "failed", progress: 0.5,
@@ -50,5 +51,38 @@ it("keeps the history of every job with each stage's log", () => {
   expect(log.querySelector("summary")?.textContent).toBe("Stage logs of job 20");
   expect(log.textContent).toContain("coregister");
   expect(log.textContent).toContain("10:00:30 ERROR failed: no stable terrain");
+  panel.close();
+});
+
+it("names the stages and says what they do in Japanese, the server's words for a stage it does not know", () => {
+  vi.stubGlobal("fetch", async () => new Response("", { status: 200, headers: { "content-type": "text/event-stream" } }));
+  useLocale("ja-JP");
+  const box = document.createElement("div");
+  const panel = new JobsPanel(box, 1, "Asia/Tokyo", () => {});
+  const later = { ...failed.stages[0], stage: "resample", help: "a stage added on the server later", log: [] };
+  panel.show([{ ...failed, stages: [...failed.stages, later] }]);
+  const names = [...box.querySelectorAll(".stage-name")].map((s) => s.textContent);
+  expect(names).toEqual(["グリッド統一", "位置合わせ（コレジストレーション）", "resample"]);
+  const helps = [...box.querySelectorAll(".stage .muted")].map((s) => s.textContent);
+  expect(helps).toEqual(["両 DSM を同じグリッドに揃える", "後時期 DSM を前時期 DSM に合わせて移動", "a stage added on the server later"]);
+  expect(box.querySelector("progress")?.getAttribute("aria-label")).toBe("グリッド統一 の進捗");
+  expect(box.textContent).toContain("失敗：（英語の原文）coregister: the DSMs share no stable terrain");
+  const log = box.querySelector("details.job-log") as HTMLDetailsElement;
+  expect([...log.querySelectorAll("h4")].map((h) => h.textContent)).toEqual(["グリッド統一", "位置合わせ（コレジストレーション）"]);
+  expect(log.textContent).toContain("ワーカーが出力したログの原文（英語）です。");
+  expect(jobTitle({ ...failed, kind: "report" })).toBe("ジョブ：報告書作成");
+  expect(jobTitle({ ...failed, kind: "export" })).toBe("ジョブ：export");
+  panel.close();
+});
+
+it("shows the stages as the server names them on an English page", () => {
+  vi.stubGlobal("fetch", async () => new Response("", { status: 200, headers: { "content-type": "text/event-stream" } }));
+  const box = document.createElement("div");
+  const panel = new JobsPanel(box, 1, "UTC", () => {});
+  panel.show([failed]);
+  expect([...box.querySelectorAll(".stage-name")].map((s) => s.textContent)).toEqual(["align", "coregister"]);
+  expect(box.querySelector(".stage .muted")?.textContent).toBe("both DSMs onto one grid");
+  expect(box.textContent).not.toContain("in English");
+  expect(jobTitle({ ...failed, kind: "report" })).toBe("report job");
   panel.close();
 });

@@ -5,17 +5,22 @@
 import { ApiError, authHeaders, postJson } from "../api";
 import { escapeHtml, formatDateTime, formatPercent } from "../format";
 import { streamEvents } from "../sse";
-import { type MessageKey, t } from "../i18n";
-import type { Job } from "../types";
+import { type MessageKey, serverText, serverWords, speaksServerLanguage, t } from "../i18n";
+import type { Job, StageRun } from "../types";
 
 const FINAL = new Set(["succeeded", "failed"]);
 
-// One name for one thing: stage names and their help are the pipeline's own (from the API).
+// One name for one thing: stage names and their help are the pipeline's own (from the
+// API), in the page's language where its catalogue has them (serverWords).
 export function jobTitle(job: Job): string {
   if (job.kind === "comparison") return t("jobs.comparison", { id: job.comparison_id ?? "" }).trim();
   if (job.kind === "reconstruction") return t("jobs.reconstruction", { id: job.survey_id ?? "" }).trim();
-  return t("jobs.other", { kind: job.kind });
+  return t("jobs.other", { kind: serverWords(`jobKind.${job.kind}`, job.kind) });
 }
+
+/** A stage's name, and what it does in one line, in the page's language. */
+export const stageName = (stage: StageRun) => serverWords(`stage.${stage.stage}`, stage.stage);
+export const stageHelp = (stage: StageRun) => serverWords(`stageHelp.${stage.stage}`, stage.help ?? "");
 
 const STATES = new Set(["queued", "pending", "running", "succeeded", "failed"]);
 /** A job's or stage's state in words; one the page does not know as the API says it. */
@@ -26,10 +31,12 @@ const RECENT = 8;
 function stageLogsHtml(job: Job, open: boolean): string {
   const stages = job.stages
     .filter((s) => s.log?.length)
-    .map((s) => `<h4>${escapeHtml(s.stage)}</h4><pre class="stage-log">${escapeHtml(s.log.join("\n"))}</pre>`)
+    .map((s) => `<h4>${escapeHtml(stageName(s))}</h4><pre class="stage-log" lang="en">${escapeHtml(s.log.join("\n"))}</pre>`)
     .join("");
   if (!stages) return "";
-  return `<details class="job-log" data-log="${job.id}"${open ? " open" : ""}><summary>${t("jobs.logs", { id: job.id })}</summary>${stages}</details>`;
+  // The lines are the worker's, in English: a page in another language says so.
+  const note = speaksServerLanguage() ? "" : `<p class="muted">${t("jobs.logsOriginal")}</p>`;
+  return `<details class="job-log" data-log="${job.id}"${open ? " open" : ""}><summary>${t("jobs.logs", { id: job.id })}</summary>${note}${stages}</details>`;
 }
 
 export class JobsPanel {
@@ -115,8 +122,8 @@ export class JobsPanel {
         const stages = job.stages
           .map(
             (s) => `<li class="stage stage-${s.state}">
-              <label><span class="stage-name">${escapeHtml(s.stage)}</span> <span class="muted">${escapeHtml(s.help ?? "")}</span>
-              <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(t("jobs.stageProgress", { stage: s.stage }))}">${formatPercent(s.progress)}</progress></label>
+              <label><span class="stage-name">${escapeHtml(stageName(s))}</span> <span class="muted">${escapeHtml(stageHelp(s))}</span>
+              <progress max="1" value="${s.state === "succeeded" ? 1 : s.progress}" aria-label="${escapeHtml(t("jobs.stageProgress", { stage: stageName(s) }))}">${formatPercent(s.progress)}</progress></label>
               <span class="stage-state">${stateWord(s.state)}${s.attempts > 1 ? t("jobs.attempt", { n: s.attempts }) : ""}</span>
             </li>`,
           )
@@ -127,7 +134,7 @@ export class JobsPanel {
           <p class="muted">${t("jobs.queuedAt", { when: formatDateTime(job.created_at, this.timeZone) })}${job.finished_at ? t("jobs.finishedAt", { when: formatDateTime(job.finished_at, this.timeZone) }) : ""}</p>
           <ol class="stages">${stages}</ol>
           ${stageLogsHtml(job, this.openLogs.has(job.id))}
-          ${failed ? `<p class="error" role="alert">${t("jobs.failed", { reason: escapeHtml(job.error ?? t("common.noReason")) })}</p>
+          ${failed ? `<p class="error" role="alert">${t("jobs.failed", { reason: escapeHtml(job.error ? serverText(job.error) : t("common.noReason")) })}</p>
             <button type="button" data-retry="${job.id}">${t("jobs.retry", { id: job.id })}</button><p class="error retry-error"></p>` : ""}
         </article>`;
       })

@@ -4,7 +4,7 @@
 import { api, getJson, postJson } from "../api";
 import { escapeHtml, formatBytes, formatPercent, toZonedWallTime, zonedWallTimeToUtc } from "../format";
 import { faststart } from "../faststart";
-import { type MessageKey, t } from "../i18n";
+import { type MessageKey, serverText, t } from "../i18n";
 import type { Job, MapConfig, Site, Survey, SurveyFile, UnfinishedUpload } from "../types";
 import { cancelUpload, createUpload, forgetUpload, type RunningUpload, startUpload } from "../upload";
 import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey, MIN_IMAGES } from "../validation";
@@ -333,7 +333,7 @@ export class UploadPanel {
   private async settled(url: string): Promise<UploadStatus> {
     for (;;) {
       const status = await getJson<UploadStatus>(url);
-      if (status.state === "failed") throw new Error(status.error ?? t("upload.refused"));
+      if (status.state === "failed") throw new Error(status.error ? serverText(status.error) : t("upload.refused"));
       if (status.state === "complete") return status;
       await new Promise((r) => setTimeout(r, 1000));
     }

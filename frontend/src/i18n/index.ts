@@ -121,6 +121,32 @@ export function t(key: MessageKey, params: Params = {}): string {
   });
 }
 
+/** The language the server writes its own words in: method summaries, stage help,
+ * survey warnings, quality checks, job failures and the API's error details. */
+export const SERVER_LANGUAGE = "en";
+
+/** Whether the page speaks the server's language: its words are shown as it wrote them,
+ * with no translation and no lead. */
+export function speaksServerLanguage(): boolean {
+  return catalogue.code === SERVER_LANGUAGE;
+}
+
+/** The words for something the server names by an identifier and words itself (a
+ * detection method's summary, a stage's name and help): the server's own words where the
+ * page speaks its language; else the message `key` of the page's language; else, for an
+ * identifier no catalogue knows (a method added on the server since), the server's. */
+export function serverWords(key: string, server: string): string {
+  if (speaksServerLanguage()) return server;
+  const message = Object.hasOwn(catalogue.messages, key) ? catalogue.messages[key as MessageKey] : undefined;
+  return message === undefined ? server : form(message, undefined);
+}
+
+/** Free text the server wrote (a job's failure, a quality check's message) where the
+ * page speaks another language: marked as the server's own words, in its language. */
+export function serverText(text: string): string {
+  return speaksServerLanguage() ? text : t("server.original", { text });
+}
+
 /** Every catalogue, for tests (completeness of each language against English). */
 export function catalogues(): Catalogue[] {
   return [...CATALOGUES.values()];

@@ -11,7 +11,7 @@ import { isTimeZone, timeZoneField } from "../components/tools";
 import { renderTimeline } from "../components/timeline";
 import { UploadPanel } from "../components/uploadPanel";
 import { escapeHtml, formatArea, formatDate, formatFixed, formatMetres, formatVolume } from "../format";
-import { type MessageKey, t } from "../i18n";
+import { type MessageKey, serverText, t } from "../i18n";
 import { MapView } from "../map/mapView";
 import { detectionText, methodOptionsHtml, methodSummary } from "../methods";
 import type {
@@ -196,7 +196,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
                   area: formatArea(c.summary.total_area_m2),
                   loss: formatVolume(c.summary.total_volume_loss_m3),
                 })
-              : escapeHtml(c.error ?? "");
+              : escapeHtml(c.error ? serverText(c.error) : "");
             const current = state.shown?.id === c.id ? "aria-current=\"true\"" : "";
             const how = detectionText(c.detection);
             return `<li class="comparison status-${c.status}" data-comparison-id="${c.id}">
