@@ -77,10 +77,10 @@ def test_an_attempt_taken_over_cannot_retry_or_fail_the_one_running_now(
     job_id = job(session, StageState.running, queued_at=ago(60), heartbeat_at=ago(3))
     session.commit()
     run = session.scalar(select(StageRun).where(StageRun.job_id == job_id))
-    now = datetime.now(UTC)
-    assert _claim(session, run.id, now, 8) is None  # alive: nobody takes it
-    session.execute(update(StageRun).values(heartbeat_at=now - timedelta(seconds=9)))
-    assert _claim(session, run.id, now, 8) == 2  # its worker is dead: attempt 2 takes it
+    # The claim is judged at the clock the heartbeats were written by (NOW, not the day's).
+    assert _claim(session, run.id, NOW, 8) is None  # alive: nobody takes it
+    session.execute(update(StageRun).values(heartbeat_at=ago(9)))
+    assert _claim(session, run.id, NOW, 8) == 2  # its worker is dead: attempt 2 takes it
     session.commit()
 
     context = JobContext.from_settings(settings)
