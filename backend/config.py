@@ -144,6 +144,14 @@ class Settings(BaseSettings):
         gt=0,
         description="A map tile not rendered within this many seconds is answered 503.",
     )
+    tile_grant_ttl_s: float = Field(
+        default=5.0,
+        ge=0,
+        description="Seconds an API process remembers that a token may read a layer's tiles "
+        "(its role on the site, the layer's file): a revoked token, a removed role or a "
+        "deleted product stops opening tiles at most this long after the change. 0 checks "
+        "the database on every tile.",
+    )
     worker_concurrency: int = Field(default=1, description="Worker processes per worker.")
     public_url: str | None = Field(
         default=None,

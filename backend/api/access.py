@@ -21,6 +21,7 @@ from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, status
+from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentToken, SessionDep
 from backend.db.access import is_platform_admin, role_in_organisation, role_on_site
@@ -30,7 +31,7 @@ from backend.ids import RowId
 PERMISSION_ATTRIBUTE = "__permission__"
 
 
-def _declares(permission: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def declares(permission: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     def mark(dependency: Callable[..., Any]) -> Callable[..., Any]:
         setattr(dependency, PERMISSION_ATTRIBUTE, permission)
         return dependency
@@ -48,19 +49,24 @@ def _check(role: Role | None, need: Role, what: str) -> None:
         )
 
 
+def site_for(session: Session, token: ApiToken, site_id: int, need: Role) -> Site:
+    """Site `site_id` if the token has at least `need` on it; 404 or 403 otherwise."""
+    site = session.get(Site, site_id)
+    role = role_on_site(session, token, site) if site is not None else None
+    _check(role, need, f"site {site_id}")
+    return site  # type: ignore[return-value]
+
+
 def site_access(need: Role) -> Callable[..., Site]:
-    @_declares(f"site:{need.value}")
+    @declares(f"site:{need.value}")
     def dependency(site_id: RowId, session: SessionDep, token: CurrentToken) -> Site:
-        site = session.get(Site, site_id)
-        role = role_on_site(session, token, site) if site is not None else None
-        _check(role, need, f"site {site_id}")
-        return site  # type: ignore[return-value]
+        return site_for(session, token, site_id, need)
 
     return dependency
 
 
 def organisation_access(need: Role) -> Callable[..., Organisation]:
-    @_declares(f"organisation:{need.value}")
+    @declares(f"organisation:{need.value}")
     def dependency(
         organisation_id: RowId, session: SessionDep, token: CurrentToken
     ) -> Organisation:
@@ -76,7 +82,7 @@ def organisation_access(need: Role) -> Callable[..., Organisation]:
     return dependency
 
 
-@_declares("upload:analyst")
+@declares("upload:analyst")
 def upload_access(upload_id: str, session: SessionDep, token: CurrentToken) -> Upload:
     upload = session.get(Upload, upload_id) if upload_id.isalnum() else None
     site = session.get(Site, upload.site_id) if upload is not None else None
@@ -85,12 +91,12 @@ def upload_access(upload_id: str, session: SessionDep, token: CurrentToken) -> U
     return upload  # type: ignore[return-value]
 
 
-@_declares("signed-in")
+@declares("signed-in")
 def signed_in(token: CurrentToken) -> ApiToken:
     return token
 
 
-@_declares("platform-admin")
+@declares("platform-admin")
 def platform_admin(token: CurrentToken) -> ApiToken:
     if not is_platform_admin(token):
         raise HTTPException(

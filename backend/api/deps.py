@@ -65,12 +65,8 @@ _api_key = APIKeyQuery(
 )
 
 
-def require_token(
-    session: SessionDep,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-    api_key: Annotated[str | None, Depends(_api_key)] = None,
-) -> ApiToken:
-    """The token from `Authorization: Bearer <token>`, else from `?api_key=<token>`."""
+def token_secret(credentials: HTTPAuthorizationCredentials | None, api_key: str | None) -> str:
+    """The secret from `Authorization: Bearer <token>`, else from `?api_key=<token>`."""
     secret = credentials.credentials if credentials is not None else api_key
     if not secret:
         raise HTTPException(
@@ -78,6 +74,11 @@ def require_token(
             "missing API token: send 'Authorization: Bearer <token>'",
             headers={"WWW-Authenticate": "Bearer"},
         )
+    return secret
+
+
+def token_for(session: Session, secret: str) -> ApiToken:
+    """The valid token of `secret`, its last use committed; 401 otherwise."""
     token = authenticate(session, secret)
     if token is None:
         raise HTTPException(
@@ -90,6 +91,17 @@ def require_token(
     # otherwise block every other writer, workers included, for as long as it lasts.
     session.commit()
     return token
+
+
+BearerCredentials = Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
+ApiKey = Annotated[str | None, Depends(_api_key)]
+
+
+def require_token(
+    session: SessionDep, credentials: BearerCredentials, api_key: ApiKey = None
+) -> ApiToken:
+    """The token from `Authorization: Bearer <token>`, else from `?api_key=<token>`."""
+    return token_for(session, token_secret(credentials, api_key))
 
 
 CurrentToken = Annotated[ApiToken, Depends(require_token)]

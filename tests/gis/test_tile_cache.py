@@ -6,10 +6,13 @@ comparison job is needed): a few seconds."""
 
 from __future__ import annotations
 
+import asyncio
 import io
 import os
 import socket
+import time
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 from types import SimpleNamespace
 from unittest.mock import patch
@@ -18,16 +21,18 @@ import morecantile
 import numpy as np
 import pytest
 import rasterio
-from fastapi import FastAPI
+from fastapi import FastAPI, HTTPException
 from fastapi.testclient import TestClient
 from PIL import Image
 from rio_tiler.models import ImageData
-from sqlalchemy import select
+from sqlalchemy import select, update
 from uvicorn.protocols.http.auto import AutoHTTPProtocol
 
 from backend.api.http_protocol import NoDelayHTTPProtocol
+from backend.api.tile_grants import TileGrants
 from backend.config import Settings
-from backend.db.models import Product
+from backend.db.models import ApiToken, Product
+from backend.db.tokens import hash_token
 from backend.services import tiles as tiles_module
 from backend.services.tile_cache import (
     DiskTileCache,
@@ -186,6 +191,51 @@ def test_the_default_stretch_asked_by_its_numbers_is_the_same_tile(
     assert page.headers["etag"] == plain.headers["etag"]
     other = client.get(f"{url}?rescale={low:.3f},{high + 1:.3f}", headers=auth)
     assert other.headers["x-tile-cache"] == "miss" and other.content != plain.content
+
+
+def test_a_revoked_token_opens_tiles_no_longer_than_the_grants_lifetime(
+    app: FastAPI, client: TestClient, layer: str
+) -> None:
+    """A check that passed is kept SLIDEWATCH_TILE_GRANT_TTL_S (5 s by default) per API
+    process, so a map's tiles skip the database; a revocation holds once it runs out."""
+    assert Settings().tile_grant_ttl_s == 5.0
+    saved = getattr(app.state, "tile_grants", None)
+    try:
+        for ttl_s in (0.4, 0.0):
+            app.state.tile_grants = TileGrants(ttl_s)
+            own = {"Authorization": f"Bearer {token_for(app)}"}
+            url = _tile(client, own, layer)
+            assert client.get(url, headers=own).status_code == 200
+            with app.state.sessionmaker() as session:
+                session.execute(
+                    update(ApiToken)
+                    .where(ApiToken.token_hash == hash_token(own["Authorization"][7:]))
+                    .values(revoked_at=datetime.now(UTC))
+                )
+                session.commit()
+            if ttl_s:
+                assert client.get(url, headers=own).status_code == 200  # still granted
+                time.sleep(ttl_s + 0.1)
+            refused = client.get(url, headers=own)
+            assert refused.status_code == 401, ttl_s
+            assert refused.json()["detail"] == "invalid or revoked API token"
+    finally:
+        app.state.tile_grants = saved
+
+
+def test_grants_are_bounded_and_a_refusal_is_never_kept() -> None:
+    grants: TileGrants[str] = TileGrants(60.0, max_entries=2)
+    for key in ("a", "b", "c"):
+        grants.put(key, key.upper())
+    assert [grants.get(key) for key in ("a", "b", "c")] == [None, "B", "C"]
+
+    def refuse() -> str:
+        raise HTTPException(403, "no")
+
+    with pytest.raises(HTTPException):
+        asyncio.run(grants.resolve("d", refuse))
+    assert grants.get("d") is None
+    assert asyncio.run(grants.resolve("d", lambda: "D")) == "D" and grants.get("d") == "D"
 
 
 def test_a_tile_that_would_read_too_much_is_refused(

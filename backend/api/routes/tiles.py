@@ -21,12 +21,24 @@ from typing import Annotated, Any
 import anyio
 import anyio.to_thread
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+from fastapi.security import HTTPAuthorizationCredentials
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.access import SiteViewer
-from backend.api.deps import SessionDep, StorageDep, owned_by_site, public_base
+from backend.api.access import SiteViewer, declares, site_for
+from backend.api.deps import (
+    ApiKey,
+    BearerCredentials,
+    SessionDep,
+    StorageDep,
+    owned_by_site,
+    public_base,
+    token_for,
+    token_secret,
+)
+from backend.api.tile_grants import TileGrants, grant_key
 from backend.config import Settings
-from backend.db.models import Comparison, JobState, Product, Site, Survey
+from backend.db.models import Comparison, JobState, Product, Role, Site, Survey
 from backend.ids import RowId
 from backend.services.post_motion import PostMotion, motion_from_summary
 from backend.services.tile_cache import (
@@ -56,6 +68,7 @@ from backend.services.tiles import (
     tile_key,
     wmts_capabilities,
 )
+from backend.storage import LocalStorage
 from backend.urls import api_url
 
 router = APIRouter(prefix="/sites/{site_id}", tags=["map tiles"])
@@ -88,9 +101,9 @@ def _product_path(
 
 
 def _layer_source(
-    site: Site, owner: str, owner_id: RowId, layer: str, session: SessionDep, storage: StorageDep
+    site: Site, owner: str, owner_id: RowId, layer: str, session: Session, storage: LocalStorage
 ) -> LayerSource:
-    """The path dependency: our ids (and the token, through SiteViewer) to a file we own."""
+    """Our ids (the site's reader checked) to a file we own: no path is taken from a client."""
     layers = LAYERS[owner]
     if layer not in layers:
         raise HTTPException(
@@ -114,16 +127,67 @@ def _layer_source(
     return LayerSource(site.id, owner, owner_id, spec, path)
 
 
-def survey_layer(
-    site: SiteViewer, survey_id: RowId, layer: str, session: SessionDep, storage: StorageDep
-) -> LayerSource:
-    return _layer_source(site, "surveys", survey_id, layer, session, storage)
+def _tile_grants(request: Request) -> TileGrants[Any]:
+    grants = getattr(request.app.state, "tile_grants", None)
+    if grants is None:
+        settings: Settings = request.app.state.settings
+        grants = request.app.state.tile_grants = TileGrants(settings.tile_grant_ttl_s)
+    return grants
 
 
-def comparison_layer(
-    site: SiteViewer, comparison_id: RowId, layer: str, session: SessionDep, storage: StorageDep
+def _checked_source(
+    state: Any, secret: str, site_id: int, owner: str, owner_id: int, layer: str
 ) -> LayerSource:
-    return _layer_source(site, "comparisons", comparison_id, layer, session, storage)
+    """The full check of a layer's reader, in one session: token, role, product."""
+    with state.sessionmaker() as session:
+        token = token_for(session, secret)
+        site = site_for(session, token, site_id, Role.viewer)
+        return _layer_source(site, owner, owner_id, layer, session, state.storage)
+
+
+async def _granted_source(
+    request: Request,
+    credentials: HTTPAuthorizationCredentials | None,
+    api_key: str | None,
+    site_id: int,
+    owner: str,
+    owner_id: int,
+    layer: str,
+) -> LayerSource:
+    secret = token_secret(credentials, api_key)
+    check = partial(_checked_source, request.app.state, secret, site_id, owner, owner_id, layer)
+    key = grant_key(secret, site_id, owner, owner_id, layer)
+    return await _tile_grants(request).resolve(key, check)
+
+
+# The path dependencies of tiles and TileJSON: the viewer's check of backend/api/access.py
+# and the layer's file, remembered for a few seconds (backend/api/tile_grants.py).
+@declares(f"site:{Role.viewer.value}")
+async def survey_layer(
+    request: Request,
+    site_id: RowId,
+    survey_id: RowId,
+    layer: str,
+    credentials: BearerCredentials,
+    api_key: ApiKey = None,
+) -> LayerSource:
+    return await _granted_source(
+        request, credentials, api_key, site_id, "surveys", survey_id, layer
+    )
+
+
+@declares(f"site:{Role.viewer.value}")
+async def comparison_layer(
+    request: Request,
+    site_id: RowId,
+    comparison_id: RowId,
+    layer: str,
+    credentials: BearerCredentials,
+    api_key: ApiKey = None,
+) -> LayerSource:
+    return await _granted_source(
+        request, credentials, api_key, site_id, "comparisons", comparison_id, layer
+    )
 
 
 def tile_template(base: str, source: LayerSource) -> str:
@@ -195,7 +259,14 @@ async def _tile(
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from None
     spec = source.spec
     settings: Settings = request.app.state.settings
-    identity = file_identity(source.path)
+    try:
+        identity = file_identity(source.path)
+    except FileNotFoundError:
+        # Deleted since its reader's grant was checked (backend/api/tile_grants.py).
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            f"{source.owner[:-1]} {source.owner_id} has no {spec.product_kind} product",
+        ) from None
     group = group_name(source.owner, source.owner_id) if moved_by is None else moved_by
     cache = _tile_cache(request)
     if stretch is None and stretched(spec):
@@ -310,7 +381,6 @@ TILE_DOC = {
 async def survey_tile(
     request: Request,
     source: Annotated[LayerSource, Depends(survey_layer)],
-    session: SessionDep,
     z: int,
     x: int,
     y: int,
@@ -327,31 +397,35 @@ async def survey_tile(
 ) -> Response:
     if coregistered_by is None:
         return await _tile(request, source, z, x, y, rescale, colormap)
-    motion = _coregistration_motion(session, source, coregistered_by)
-    group = group_name("comparisons", coregistered_by)
-    return await _tile(request, source, z, x, y, rescale, colormap, motion, group)
-
-
-def _coregistration_motion(
-    session: SessionDep, source: LayerSource, comparison_id: int
-) -> PostMotion:
-    """The horizontal correction (rotation and shift) a comparison applied to this survey
-    (its post survey)."""
     if source.spec.style != LayerStyle.image:
         raise HTTPException(
             status.HTTP_422_UNPROCESSABLE_CONTENT,
             "coregistered_by moves orthophoto tiles only; the co-registered post DSM is the "
             "comparison's own dsm and hillshade layers",
         )
-    comparison = session.get(Comparison, comparison_id)
-    if comparison is None or comparison.site_id != source.site_id:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"comparison {comparison_id} not found")
-    if comparison.post_survey_id != source.owner_id:
-        raise HTTPException(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
-            f"survey {source.owner_id} is not the post survey of comparison {comparison_id}",
-        )
-    motion = motion_from_summary(comparison.summary)
+    # The reader's grant of the survey's layer is checked above; this is the comparison's
+    # motion, kept as long as that grant.
+    motion = await _tile_grants(request).resolve(
+        ("motion", source.site_id, source.owner_id, coregistered_by),
+        partial(_coregistration_motion, request.app.state, source, coregistered_by),
+    )
+    group = group_name("comparisons", coregistered_by)
+    return await _tile(request, source, z, x, y, rescale, colormap, motion, group)
+
+
+def _coregistration_motion(state: Any, source: LayerSource, comparison_id: int) -> PostMotion:
+    """The horizontal correction (rotation and shift) a comparison applied to this survey
+    (its post survey)."""
+    with state.sessionmaker() as session:
+        comparison = session.get(Comparison, comparison_id)
+        if comparison is None or comparison.site_id != source.site_id:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"comparison {comparison_id} not found")
+        if comparison.post_survey_id != source.owner_id:
+            raise HTTPException(
+                status.HTTP_422_UNPROCESSABLE_CONTENT,
+                f"survey {source.owner_id} is not the post survey of comparison {comparison_id}",
+            )
+        motion = motion_from_summary(comparison.summary)
     if motion is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT, f"comparison {comparison_id} has no co-registration yet"
