@@ -3,7 +3,9 @@ SHELL := /bin/bash
 VENV ?= .venv
 PYTHON := $(VENV)/bin/python
 INSTALLED := $(VENV)/.installed
-PYTEST_ARGS ?=
+# Test processes (pytest-xdist): the suite is made for 2 cores; more only if the machine has them.
+TEST_PROCESSES ?= 2
+PYTEST_ARGS ?= --numprocesses $(TEST_PROCESSES)
 
 .PHONY: install run test lint format lock benchmark clean
 

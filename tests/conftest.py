@@ -10,7 +10,23 @@ import redis
 from backend.config import Settings
 from tests.databases import empty_postgres_database
 
-TEST_REDIS_URL = os.environ.get("SLIDEWATCH_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
+
+def _redis_url_of_this_process() -> str:
+    """The test Redis; each pytest-xdist process on its own database (gw0 on 1, gw1 on 2…),
+    since a test empties its database before and after it runs."""
+    url = os.environ.get("SLIDEWATCH_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw"):
+        return url
+    return f"{url.rsplit('/', 1)[0]}/{int(worker[2:]) + 1}"
+
+
+TEST_REDIS_URL = _redis_url_of_this_process()
+
+# Tiles are not rendered ahead in the tests' workers (tests/integration/test_tile_prerender.py
+# turns it on for its own): thousands of tiles after each survey and comparison would take
+# the CPU from the tests running beside them, and no other test reads them.
+os.environ.setdefault("SLIDEWATCH_TILE_PRERENDER_MAX_TILES", "0")
 
 
 @pytest.fixture

@@ -86,6 +86,8 @@ def app_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
         "SLIDEWATCH_FRONTEND_DIR": str(FRONTEND_DIST),
         "SLIDEWATCH_UPLOAD_CHUNK_BYTES": str(CHUNK_BYTES),
         "SLIDEWATCH_SEED_DEMO": "false",
+        # One browser at a time: a second API process would only cost its start.
+        "SLIDEWATCH_API_WORKERS": "1",
         # The webhook receiver of the alerts test listens on loopback, which webhooks may
         # call only where an administrator allows it.
         "SLIDEWATCH_WEBHOOK_ALLOWED_NETWORKS": '["127.0.0.1/32"]',

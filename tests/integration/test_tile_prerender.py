@@ -48,9 +48,15 @@ def _logged_done(worker: SlidewatchProcess, prefix: str) -> bool:
 
 
 def test_a_worker_renders_the_tiles_ahead_and_deleting_removes_them(
-    tmp_path: Path, start_worker: Callable[..., SlidewatchProcess]
+    tmp_path: Path,
+    start_worker: Callable[..., SlidewatchProcess],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    # As deployed: the setting's default (tests/conftest.py turns it off for the others).
+    default = Settings.model_fields["tile_prerender_max_tiles"].default
+    monkeypatch.setenv("SLIDEWATCH_TILE_PRERENDER_MAX_TILES", str(default))
     settings = Settings(data_dir=tmp_path / "data")
+    assert settings.tile_prerender_max_tiles == default > 0
     client, auth = api_client(settings)
     worker = start_worker(settings)
     pair = make_dsm_pair(shape=(120, 120), pixel_size_m=2.0, shift_m=(2.6, -1.4, 0.2), seed=7)

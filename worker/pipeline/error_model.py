@@ -31,8 +31,6 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-import xdem.spatialstats as xss
-from geoutils.stats import nmad as robust_nmad
 from scipy import ndimage, optimize
 
 LOD_Z = 1.96  # two-sided 95 % for a normal error
@@ -246,6 +244,11 @@ def _fit_heteroscedasticity(
     rng: np.random.Generator,
     options: ErrorModelOptions,
 ) -> ErrorModel:
+    # Imported here: xdem takes 1.5 s to import, and every worker process (and the API's)
+    # imports this module whether or not it ever fits an error model.
+    import xdem.spatialstats as xss
+    from geoutils.stats import nmad as robust_nmad
+
     index = np.flatnonzero(stable.ravel())
     if index.size > options.max_samples:
         index = np.sort(rng.choice(index, options.max_samples, replace=False))

@@ -30,7 +30,6 @@ from reportlab.platypus import (
 
 from worker.pipeline.atomic import atomic_path
 from worker.reports.data import ReportData
-from worker.reports.figure import site_map
 from worker.reports.fonts import FONT, FONT_BOLD, markup, register_fonts
 from worker.reports.words import (
     change_text,
@@ -171,6 +170,10 @@ def build_report(data: ReportData, out_dir: Path) -> ReportFiles:
     """Write map.png, report.pdf and report.html into `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # Imported here: matplotlib's pyplot takes most of a second to import, and the API and
+    # every worker import this package for its data types and words.
+    from worker.reports.figure import site_map
+
     figure = site_map(
         data.dh_path,
         data.dsm_path,
