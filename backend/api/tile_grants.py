@@ -11,6 +11,7 @@ the change. A check that failed is never kept, so a role just granted opens tile
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections import OrderedDict
@@ -35,6 +36,8 @@ class TileGrants(Generic[Granted]):
         self.max_entries = max_entries
         self._entries: OrderedDict[Hashable, tuple[float, Granted]] = OrderedDict()
         self._lock = threading.Lock()
+        # Checks running now, by key: on the event loop of the API process that serves.
+        self._running: dict[Hashable, asyncio.Future[Granted]] = {}
 
     def get(self, key: Hashable) -> Granted | None:
         with self._lock:
@@ -58,11 +61,36 @@ class TileGrants(Generic[Granted]):
 
     async def resolve(self, key: Hashable, check: Callable[[], Granted]) -> Granted:
         """The kept grant of `key`, else `check()` run in the thread pool (it raises
-        HTTPException to refuse) and kept."""
+        HTTPException to refuse) and kept. Requests that ask for the same key while its
+        check runs wait for that check: a map opening asks for a dozen tiles of a layer at
+        once, and each checking for itself queued them all behind a dozen checks."""
+        while (running := self._running.get(key)) is not None:
+            try:
+                return await asyncio.shield(running)
+            except asyncio.CancelledError:
+                task = asyncio.current_task()
+                if not running.cancelled() or (task is not None and task.cancelling()):
+                    raise
+                # The request that was checking went away: check again.
         granted = self.get(key)
-        if granted is None:
+        if granted is not None:
+            return granted
+        future: asyncio.Future[Granted] = asyncio.get_running_loop().create_future()
+        # A refusal nobody else waited for is not an unretrieved exception.
+        future.add_done_callback(lambda done: done.cancelled() or done.exception())
+        self._running[key] = future
+        try:
             granted = await run_in_threadpool(check)
-            self.put(key, granted)
+        except Exception as exc:
+            future.set_exception(exc)  # the same refusal for those who waited
+            raise
+        except BaseException:
+            future.cancel()
+            raise
+        finally:
+            del self._running[key]
+        self.put(key, granted)
+        future.set_result(granted)
         return granted
 
 

@@ -238,6 +238,35 @@ def test_grants_are_bounded_and_a_refusal_is_never_kept() -> None:
     assert asyncio.run(grants.resolve("d", lambda: "D")) == "D" and grants.get("d") == "D"
 
 
+def test_requests_for_one_layer_at_once_wait_for_one_check() -> None:
+    """A map opening asks a dozen tiles of a layer at once: one check, not a dozen."""
+    grants: TileGrants[str] = TileGrants(60.0)
+    checks = []
+
+    def check() -> str:
+        checks.append(1)
+        time.sleep(0.05)
+        return "granted"
+
+    async def twelve_at_once() -> list[str]:
+        return await asyncio.gather(*(grants.resolve("layer", check) for _ in range(12)))
+
+    assert asyncio.run(twelve_at_once()) == ["granted"] * 12 and len(checks) == 1
+
+    def refuse() -> str:
+        checks.append(1)
+        time.sleep(0.05)
+        raise HTTPException(403, "no")
+
+    async def refused_at_once() -> list[object]:
+        calls = (grants.resolve("other", refuse) for _ in range(5))
+        return await asyncio.gather(*calls, return_exceptions=True)
+
+    answers = asyncio.run(refused_at_once())
+    assert all(isinstance(a, HTTPException) and a.status_code == 403 for a in answers)
+    assert len(checks) == 2 and grants.get("other") is None
+
+
 def test_a_tile_that_would_read_too_much_is_refused(
     app: FastAPI, client: TestClient, auth: dict, layer: str
 ) -> None:
