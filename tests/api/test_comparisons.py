@@ -9,10 +9,21 @@ from shapely.geometry import shape
 from shapely.geometry.polygon import orient
 from sqlalchemy import create_engine, text
 
+from backend.config import Settings
 from backend.db.models import Survey
 from tests.api_helpers import run_job_inline, upload_dsm
 from worker.pipeline.comparison import default_method, stages_for
 from worker.simulator.dsm_pair import DsmPairPaths, make_dsm_pair, write_dsm_pair
+
+
+@pytest.fixture
+def embedded_settings(embedded_settings: Settings) -> Settings:
+    """As deployed, a ready survey's tiles are queued to be rendered ahead (no worker runs
+    here to render them; tests/conftest.py turns it off for the suite's workers)."""
+    embedded_settings.tile_prerender_max_tiles = Settings.model_fields[
+        "tile_prerender_max_tiles"
+    ].default
+    return embedded_settings
 
 
 @pytest.fixture
