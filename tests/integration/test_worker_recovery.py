@@ -164,6 +164,7 @@ def finished(job: dict) -> bool:
     return job["state"] in ("succeeded", "failed")
 
 
+@pytest.mark.alone  # 15 s includes a worker's start, which a second test process slows
 def test_killed_workers_are_replaced_and_their_stage_runs_again_within_15_s(
     settings: Settings, workers: Workers, pair: DsmPairPaths
 ) -> None:
