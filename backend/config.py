@@ -73,14 +73,15 @@ class Settings(BaseSettings):
     )
     # Recovery of a killed worker's stage takes at most about stale_stage_after_s +
     # recovery_interval_s + the broker's polling interval (the sweep's message, then the
-    # stage's): 8 + 2 + 2 x 1 s by default, within 15 s. A live stage is never taken for
-    # lost unless its heartbeat thread misses four beats in a row, and even then the
-    # runner keeps only the newest claim's result (worker/jobs/runner.py).
+    # stage's): 6 + 2 + 2 x 1 s by default, within 15 s with room for a replacement worker's
+    # start on a loaded machine. A live stage is never taken for lost unless its heartbeat
+    # thread misses four beats in a row, and even then the runner keeps only the newest
+    # claim's result (worker/jobs/runner.py).
     heartbeat_interval_s: float = Field(
-        default=2.0, gt=0, description="How often a running stage records that its worker lives."
+        default=1.5, gt=0, description="How often a running stage records that its worker lives."
     )
     stale_stage_after_s: float = Field(
-        default=8.0,
+        default=6.0,
         gt=0,
         description="A stage whose heartbeat is older than this is taken to be lost (its "
         "worker died): it may be claimed again and the recovery sweep queues it again. At "

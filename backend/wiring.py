@@ -6,7 +6,7 @@ subscribe to the job layer's events (the job layer never imports the services).
 """
 
 from backend.config import Settings
-from backend.services import alerts, tile_prerender
+from backend.services import alerts, tile_prerender_queue
 from worker.jobs.events import JobEvent, subscribe
 from worker.pipeline.detection_methods import load_method_modules
 
@@ -17,5 +17,5 @@ def wire(settings: Settings) -> None:
     subscribe(JobEvent.comparison_succeeded, alerts.comparison_succeeded)
     subscribe(JobEvent.job_failed, alerts.job_failed)
     subscribe(JobEvent.report_ready, alerts.report_ready)
-    subscribe(JobEvent.comparison_succeeded, tile_prerender.comparison_succeeded)
-    subscribe(JobEvent.survey_ready, tile_prerender.survey_ready)
+    subscribe(JobEvent.comparison_succeeded, tile_prerender_queue.comparison_succeeded)
+    subscribe(JobEvent.survey_ready, tile_prerender_queue.survey_ready)

@@ -12,7 +12,6 @@ import time
 
 from celery import Task
 
-from backend.services.tile_prerender import describe, prerender_chunk
 from worker.celery_app import QUEUE, TILE_PRERENDER_TASK, app
 from worker.tasks import job_context
 
@@ -24,6 +23,10 @@ RESUME_AFTER_S = 2.0
 
 @app.task(bind=True, name=TILE_PRERENDER_TASK)
 def prerender_tiles(self: Task, owner: str, owner_id: int, start: int = 0) -> None:
+    # Imported at the first chunk: the tile renderer (rio-tiler, xarray, pandas) takes over a
+    # second to import, which every worker process would pay at its start.
+    from backend.services.tile_prerender import describe, prerender_chunk
+
     context = job_context()
     settings = context.settings
     started = time.monotonic()

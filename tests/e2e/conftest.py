@@ -62,8 +62,11 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def app_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
+    """One server (API and worker) per test process, shared by the browser-test modules:
+    each start costs tens of seconds on a loaded machine. The modules keep apart by their
+    own site and user names."""
     if not (FRONTEND_DIST / "index.html").is_file():
         pytest.fail(
             "the map is not built: run `make test`, or `cd frontend && npm ci && npm run build`"

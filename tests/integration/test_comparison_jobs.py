@@ -1,9 +1,10 @@
 """A comparison runs to the end in a real Celery worker process, and survives SIGKILL.
 
-The SIGKILL on Redis + PostgreSQL (the scaled-out deployment) and on the embedded default
-(SQLite database, SQLite broker), the way `make run` starts it; each of those runs to the
-end as well. The run undisturbed on Redis + PostgreSQL (the browser tests run the embedded
-default's end to end).
+The run undisturbed on Redis + PostgreSQL (the scaled-out deployment); the SIGKILL in the
+middle of a real stage (co-registration of a large pair) on the embedded default (SQLite
+database, SQLite broker), the way `make run` starts it, which then runs to the end. A kill
+in the middle of a stage on both brokers, and its 15 s bound, is
+tests/integration/test_worker_recovery.py's.
 """
 
 from collections.abc import Callable
@@ -66,14 +67,6 @@ def check_result(client, auth, site: int, job: dict, pair: DsmPair) -> list[dict
     return features
 
 
-@pytest.fixture(params=["redis+postgresql", "embedded"])
-def settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
-    """Scaled-out (Redis + PostgreSQL) and embedded default (SQLite database and broker)."""
-    if request.param == "redis+postgresql":
-        return request.getfixturevalue("redis_postgres_settings")
-    return Settings(data_dir=tmp_path / "data")
-
-
 def test_comparison_runs_to_the_end_in_a_worker(
     redis_postgres_settings: Settings,
     start_worker: Callable[..., SlidewatchProcess], pair: tuple[DsmPair, DsmPairPaths],
@@ -88,10 +81,10 @@ def test_comparison_runs_to_the_end_in_a_worker(
 
 
 def test_worker_killed_mid_stage_loses_no_job(
-    settings: Settings,
+    embedded_settings: Settings,
     start_worker: Callable[..., SlidewatchProcess], large_pair: tuple[DsmPair, DsmPairPaths],
 ) -> None:  # fmt: skip
-    pair = large_pair
+    pair, settings = large_pair, embedded_settings
     client, auth = api_client(settings)
     worker = start_worker(settings)
     site, job_id = submit_comparison(client, auth, pair[1])

@@ -27,7 +27,7 @@ from worker.jobs.kind import JobKindName
 from worker.jobs.products import StorageJob
 from worker.pipeline.errors import InputError
 from worker.pipeline.progress import ProgressFn
-from worker.reports import Change, DetectionRow, ReportData, build_report
+from worker.reports import Change, DetectionRow, ReportData
 
 
 def data_to_json(data: ReportData) -> dict[str, Any]:
@@ -80,6 +80,10 @@ class ReportJob(StorageJob):
         if inputs.get("rejected"):
             raise InputError(inputs["rejected"])
         data = data_from_json(inputs["data"])
+        # The renderer is imported by the report's stage only (reportlab and matplotlib: most
+        # of a second in every worker's start otherwise).
+        from worker.reports.render import build_report
+
         build_report(data, Path(inputs["out_dir"]))
         return {
             "comparison_id": data.comparison_id,

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from functools import cache
 from html import escape
+from importlib.util import find_spec
 from pathlib import Path
 
-import matplotlib
 from reportlab.pdfbase import pdfmetrics
 from reportlab.pdfbase.ttfonts import TTFont
 
@@ -27,7 +27,17 @@ JAPANESE_FONT_FILES = (
     Path("/usr/share/fonts/opentype/ipaexfont-gothic/ipaexg.ttf"),
     Path("/usr/share/fonts/truetype/fonts-japanese-gothic.ttf"),  # Debian's alternative
 )
-DEJAVU_FILES = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+
+
+@cache
+def dejavu_file(name: str) -> str:
+    """A DejaVu font file of matplotlib's, found without importing matplotlib (most of a
+    second, in every worker and API process that only might make a report)."""
+    spec = find_spec("matplotlib")
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError("matplotlib, whose DejaVu fonts reports use, is not installed")
+    package = Path(next(iter(spec.submodule_search_locations)))
+    return str(package / "mpl-data" / "fonts" / "ttf" / name)
 
 
 class FontMissing(InputError):
@@ -41,8 +51,8 @@ def japanese_font_file() -> Path | None:
 @cache
 def register_fonts() -> bool:
     """Register the PDF's fonts with reportlab (once); say whether the Japanese one is."""
-    pdfmetrics.registerFont(TTFont(FONT, str(DEJAVU_FILES / "DejaVuSans.ttf")))
-    pdfmetrics.registerFont(TTFont(FONT_BOLD, str(DEJAVU_FILES / "DejaVuSans-Bold.ttf")))
+    pdfmetrics.registerFont(TTFont(FONT, dejavu_file("DejaVuSans.ttf")))
+    pdfmetrics.registerFont(TTFont(FONT_BOLD, dejavu_file("DejaVuSans-Bold.ttf")))
     pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD)
     found = japanese_font_file()
     if found is not None:
@@ -52,7 +62,7 @@ def register_fonts() -> bool:
 
 @cache
 def _dejavu_characters() -> frozenset[int]:
-    return frozenset(TTFont(FONT, str(DEJAVU_FILES / "DejaVuSans.ttf")).face.charToGlyph)
+    return frozenset(TTFont(FONT, dejavu_file("DejaVuSans.ttf")).face.charToGlyph)
 
 
 def markup(text: str) -> str:

@@ -16,7 +16,7 @@ from backend.raster_limits import RasterLimits
 from backend.services.audit import record
 from backend.services.deletion import StillInUse, delete_survey
 from backend.services.surveys import create_dsm_survey
-from backend.services.tile_prerender import send_prerender_task
+from backend.services.tile_prerender_queue import send_prerender_task
 from backend.storage import UploadTooLarge
 from worker.pipeline.errors import InputError
 

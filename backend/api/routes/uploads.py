@@ -31,7 +31,7 @@ from backend.db.tokens import as_utc
 from backend.ids import parse_row_id
 from backend.raster_limits import RasterLimits
 from backend.services.survey_sources import uploaded_file_warnings
-from backend.services.tile_prerender import send_prerender_task
+from backend.services.tile_prerender_queue import send_prerender_task
 from backend.services.uploads import (
     CHECKSUM_ALGORITHMS,
     TUS_EXTENSIONS,
