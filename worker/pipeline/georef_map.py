@@ -34,6 +34,7 @@ from worker.pipeline.georef import (
     GeoreferenceError,
     GeorefOptions,
     GeorefResult,
+    GnssDrift,
     accuracy_bounds,
     check_stated_accuracy,
     georeference,
@@ -148,11 +149,15 @@ def georeference_map(
         else:
             _apply_matrix(sparse, segment, fit)
         sparse.update_frames_from_keyframes()
-        entry["residuals_after_m"] = _residuals(sparse, segment, log, offset_s, epsg, excluded)
+        entry["residuals_after_m"] = _residuals(
+            sparse, segment, log, offset_s, epsg, excluded, fit.gnss_drift
+        )
         if table is not None and photos is not None:
             # The fit's table is superseded by the one after the adjustment, below.
             entry["fit"].pop("photos", None)
-            table += _photo_rows(sparse, segment, log, offset_s, epsg, photos, excluded)
+            table += _photo_rows(
+                sparse, segment, log, offset_s, epsg, photos, excluded, fit.gnss_drift
+            )
         results.append(entry)
         if fit.photos is not None:
             warnings += fit.warnings
@@ -239,9 +244,11 @@ def _photo_rows(
     epsg: int,
     photos: dict[float, str],
     excluded: np.ndarray,
+    drift: GnssDrift | None,
 ) -> list[dict[str, Any]]:
-    """Each photo's camera centre in the georeferenced map minus its GPS position."""
-    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    """Each photo's camera centre in the georeferenced map minus its GPS position (less
+    the fitted GNSS drift)."""
+    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg, drift)
     times = sparse.kf_t[kf_idx]
     rows = photo_table(
         photo_names_at(times, photos),
@@ -253,14 +260,22 @@ def _photo_rows(
 
 
 def _keyframe_priors(
-    sparse: SparseMap, segment: int, log: FlightLog, offset_s: float, epsg: int
+    sparse: SparseMap,
+    segment: int,
+    log: FlightLog,
+    offset_s: float,
+    epsg: int,
+    drift: GnssDrift | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(keyframe indices with a GNSS position, positions in UTM)."""
+    """(keyframe indices with a GNSS position, positions in UTM), less the GNSS drift the
+    fit estimated: the adjustment must not bend the map along it."""
     idx = np.flatnonzero(sparse.kf_segment == segment)
     values = log.interpolate(sparse.kf_t[idx] + offset_s)
     alt = values["alt"]
     ok = np.isfinite(values["lat"]) & np.isfinite(values["lon"]) & np.isfinite(alt)
     world = log_to_utm(values["lon"][ok], values["lat"][ok], alt[ok], epsg)
+    if drift is not None:
+        world = world - drift.at(sparse.kf_t[idx[ok]])
     return idx[ok], world
 
 
@@ -274,7 +289,7 @@ def _refine_segment(
     excluded: np.ndarray,
 ) -> dict[str, Any]:
     epsg = int(fit.crs.split(":")[1])
-    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg, fit.gnss_drift)
     keep = ~np.isin(sparse.kf_t[kf_idx], excluded)
     kf_idx, world = kf_idx[keep], world[keep]
     if len(kf_idx) < 4:
@@ -387,9 +402,11 @@ def _residuals(
     offset_s: float,
     epsg: int,
     excluded: np.ndarray,
+    drift: GnssDrift | None = None,
 ) -> dict[str, float]:
-    """Residual statistics over the keyframes, outlier photos left out."""
-    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg)
+    """Residual statistics over the keyframes, outlier photos left out (after the fitted
+    GNSS drift)."""
+    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg, drift)
     keep = ~np.isin(sparse.kf_t[kf_idx], excluded)
     kf_idx, world = kf_idx[keep], world[keep]
     if len(kf_idx) == 0:
