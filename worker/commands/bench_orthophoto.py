@@ -32,10 +32,13 @@ ORTHOPHOTO_FIGURES = ("width", "height", "resolution_m", "scale", "views", "keyf
 
 
 def _bias(recon: Path, flight: Path) -> tuple[float, float]:
-    """The trajectory's mean horizontal offset from the flown one (a video's GNSS bias)."""
+    """The trajectory's mean horizontal offset from the flown one (the survey's GNSS bias):
+    a video's frames against trajectory.csv, a photo set's cameras against images.csv."""
     from worker.pipeline.trajectory import read_trajectory_csv
 
     truth_csv = flight / "trajectory.csv"
+    if not truth_csv.is_file():
+        truth_csv = flight / "images.csv"
     if not truth_csv.is_file() or not (recon / "trajectory.csv").is_file():
         return 0.0, 0.0
     traj = read_trajectory_csv(recon / "trajectory.csv")
