@@ -1,6 +1,7 @@
 import { afterEach, describe, expect, it, vi } from "vitest";
 import { ApiError, errorMessage, getJson, statusLead } from "./api";
 import { t, useLocale } from "./i18n";
+import { renderSignIn } from "./pages/signin";
 
 afterEach(() => vi.unstubAllGlobals());
 
@@ -45,5 +46,26 @@ describe("an error of the API", () => {
     expect(error).toBeInstanceOf(ApiError);
     expect((error as ApiError).status).toBe(404);
     expect((error as ApiError).message).toBe("対象が見つかりません。サーバーからのメッセージ（英語）：No site 9");
+    expect((error as ApiError).detail).toBe("No site 9");
+  });
+});
+
+describe("a refused sign-in in the page", () => {
+  it("says the server's reason once, without the lead that asks to sign in again", async () => {
+    useLocale("ja-JP");
+    vi.stubGlobal(
+      "fetch",
+      async () => new Response(JSON.stringify({ detail: "wrong user name or password" }), { status: 401 }),
+    );
+    const app = document.createElement("div");
+    renderSignIn(app, () => {});
+    (app.querySelector("#username") as HTMLInputElement).value = "nina";
+    (app.querySelector("#password") as HTMLInputElement).value = "a-wrong-guess";
+    app.querySelector<HTMLFormElement>("#password-form")?.dispatchEvent(new Event("submit"));
+    const error = app.querySelector("#password-error") as HTMLElement;
+    await vi.waitFor(() => expect(error.textContent).not.toBe(""));
+    expect(error.textContent).toContain("ログインできませんでした");
+    expect(error.textContent).toContain("wrong user name or password");
+    expect(error.textContent).not.toContain("もう一度ログインしてください");
   });
 });

@@ -8,12 +8,21 @@ const TOKEN_KEY = "slidewatch.token";
 const WHO_KEY = "slidewatch.who";
 
 export class ApiError extends Error {
+  /** `message`: the refusal in the page's words; `detail`: the server's own, when it gave
+   * some (a form that already says what failed shows only those). */
   constructor(
     readonly status: number,
     message: string,
+    readonly detail: string | null = null,
   ) {
     super(message);
   }
+}
+
+/** The error an API response that is not OK becomes. */
+export async function responseError(response: Response): Promise<ApiError> {
+  const body = await response.json().catch(() => null);
+  return new ApiError(response.status, errorMessage(body, response.status), detailText(body));
 }
 
 /** The server's words in an error's body (its `detail`); null when it gave none. */
@@ -94,10 +103,7 @@ export async function api<T>(path: string, init: RequestInit = {}): Promise<T> {
     session.clear();
     onUnauthorized();
   }
-  if (!response.ok) {
-    const body = await response.json().catch(() => null);
-    throw new ApiError(response.status, errorMessage(body, response.status));
-  }
+  if (!response.ok) throw await responseError(response);
   if (response.status === 204) return undefined as T;
   return (await response.json()) as T;
 }

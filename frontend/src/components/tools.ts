@@ -1,7 +1,7 @@
 // Small things every panel of a site's tools uses: a file saved with the token, a copy
 // button, and the time zones to choose from.
 
-import { ApiError, authHeaders, errorMessage } from "../api";
+import { ApiError, authHeaders, responseError } from "../api";
 import { escapeHtml } from "../format";
 import { t } from "../i18n";
 import "./panels.css";
@@ -31,10 +31,7 @@ export function isTimeZone(name: string): boolean {
  * under the name the server gives (Content-Disposition) or `fallback`. */
 export async function download(url: string, fallback: string): Promise<void> {
   const response = await fetch(url, { headers: authHeaders() });
-  if (!response.ok) {
-    const body = await response.json().catch(() => null);
-    throw new ApiError(response.status, errorMessage(body, response.status));
-  }
+  if (!response.ok) throw await responseError(response);
   const disposition = response.headers.get("Content-Disposition") ?? "";
   const named = /filename="?([^";]+)"?/.exec(disposition)?.[1];
   const link = document.createElement("a");

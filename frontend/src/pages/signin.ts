@@ -2,7 +2,7 @@
 
 import { ApiError, api, session } from "../api";
 import { escapeHtml } from "../format";
-import { t } from "../i18n";
+import { serverText, t } from "../i18n";
 import { languageSelectHtml, wireLanguageSelect } from "../i18n/selector";
 import type { WhoAmI } from "../types";
 import { keepSignInNotice } from "./header";
@@ -50,7 +50,7 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
       keepSignInNotice(body.notice);
       done();
     } catch (e) {
-      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: e.message }) : t("error.unreachable");
+      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: refusal(e) }) : t("error.unreachable");
     }
   });
   const tokenForm = app.querySelector("#token-form") as HTMLFormElement;
@@ -65,9 +65,15 @@ export function renderSignIn(app: HTMLElement, done: () => void): void {
       done();
     } catch (e) {
       session.clear();
-      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: e.message }) : t("error.unreachable");
+      error.textContent = e instanceof ApiError ? t("signIn.refused", { reason: refusal(e) }) : t("error.unreachable");
     }
   });
   wireLanguageSelect(app);
   (app.querySelector("#username") as HTMLInputElement).focus();
+}
+
+/** Why a sign-in was refused: the server's own words (marked as such on a page in another
+ * language); the page's lead ("sign in again") would only repeat what the form says. */
+function refusal(e: ApiError): string {
+  return e.detail === null ? e.message : serverText(e.detail);
 }
