@@ -13,6 +13,7 @@ database), and bounded so that it stays within the suite's time.
 """
 
 import json
+import os
 import tempfile
 import time
 from collections import Counter
@@ -31,6 +32,7 @@ from tests.monitoring_helpers import LiveServer
 
 FUZZ_EXAMPLES = 10
 SUMMARY = Path(__file__).resolve().parents[2] / "test-artifacts" / "fuzz-summary.json"
+PARTS = SUMMARY.parent / "fuzz-parts"
 # Raw uploads (a DSM, a tus chunk) are bytes like application/octet-stream.
 schemathesis.serializer.alias(
     ["image/tiff", "application/offset+octet-stream"], "application/octet-stream"
@@ -55,17 +57,39 @@ _operations: set[str] = set()
 def fuzz_server(fuzz_app: FastAPI) -> Iterator[str]:
     """The seeded app served over HTTP, as clients reach it: its base URL. When the run
     ends, what it did goes to test-artifacts/fuzz-summary.json (operations, cases, the
-    statuses answered)."""
+    statuses answered), over every test process of the run."""
     started = time.monotonic()
     with LiveServer(fuzz_app) as server:
         yield server.url
-    SUMMARY.parent.mkdir(parents=True, exist_ok=True)
+    _write_summary(time.monotonic() - started)
+
+
+def _write_summary(seconds: float) -> None:
+    """This process's share of the cases into test-artifacts/fuzz-parts/, then the summary
+    of every share of this run (pytest-xdist splits the operations between processes; the
+    last one to finish writes the whole)."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID", "one process")
+    PARTS.mkdir(parents=True, exist_ok=True)
+    part = {
+        "run": run,
+        "operations": sorted(_operations),
+        "statuses": {str(k): v for k, v in _statuses.items()},
+        "seconds": round(seconds, 1),
+    }
+    name = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    (PARTS / f"{name}.json").write_text(json.dumps(part) + "\n")
+    shares = [json.loads(p.read_text()) for p in sorted(PARTS.glob("*.json"))]
+    shares = [share for share in shares if share["run"] == run]
+    statuses: Counter[int] = Counter()
+    for share in shares:
+        statuses.update({int(k): v for k, v in share["statuses"].items()})
     summary = {
-        "operations": len(_operations),
-        "cases": sum(_statuses.values()),
-        "server_errors": sum(n for status, n in _statuses.items() if status >= 500),
-        "statuses": dict(sorted(_statuses.items())),
-        "seconds": round(time.monotonic() - started, 1),
+        "operations": len({op for share in shares for op in share["operations"]}),
+        "cases": sum(statuses.values()),
+        "server_errors": sum(n for status, n in statuses.items() if status >= 500),
+        "statuses": dict(sorted(statuses.items())),
+        "seconds": max(share["seconds"] for share in shares),
+        "processes": len(shares),
     }
     SUMMARY.write_text(json.dumps(summary, indent=2) + "\n")
 
