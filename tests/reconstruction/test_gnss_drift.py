@@ -71,6 +71,13 @@ def test_the_drift_is_fitted_and_the_scale_stays_right(seed: int):
     assert result.similarity.scale == pytest.approx(3.0, rel=0.002)
     assert spread_cm(result, traj, true) < 1.5
     assert result.to_dict()["gnss_drift"]["over_flight_m"][0] == pytest.approx(-0.6, abs=0.08)
+    # How well 5 cm positions fix scale and rotation over the site: 2-sigma 3 cm at its
+    # edge (17 m from the centre), which the fitted map's own error stays within.
+    shape = result.shape_sigma
+    assert shape is not None and 0.02 < shape["at_edge_m"] < 0.04
+    d = result.apply(traj.positions) - true
+    d -= d.mean(axis=0)
+    assert np.hypot(d[:, 0], d[:, 1]).max() < shape["at_edge_m"]
     # The residuals are after the drift: the GPS noise's 5 cm, not the drift's decimetres.
     assert result.residuals["rms_east"] < 0.08 and result.residuals["rms_north"] < 0.08
 

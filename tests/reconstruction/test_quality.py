@@ -164,6 +164,27 @@ def test_photo_outliers_pass_at_a_fifth_and_fail_past_it():
     assert "photo_outliers" not in checks_by_name(survey_quality(stages(segment())))
 
 
+def test_a_photo_sets_scale_and_rotation_are_checked_against_two_dsm_cells():
+    def photo_segment(at_edge_m: float) -> dict:
+        seg = segment()
+        seg["fit"]["shape_sigma"] = {"scale": 0.0017, "rotation_deg": 0.1, "at_edge_m": at_edge_m}
+        return seg
+
+    dsm = {"dsm": {"resolution_m": 0.02}}
+    at_bound = survey_quality(stages(photo_segment(0.04), dsm=dsm))
+    check = checks_by_name(at_bound)["georeference_shape"]
+    assert check["value"] == 0.04 and check["bound"] == 0.04 and check["passed"] is True
+    past = survey_quality(stages(photo_segment(0.071), dsm=dsm))
+    check = checks_by_name(past)["georeference_shape"]
+    assert check["passed"] is False and past["passed"] is False
+    assert "0.17 %" in check["message"] and "7.1 cm at the site's edge" in check["message"]
+    assert "2 DSM cells (4.0 cm)" in check["message"]
+    # A video survey (no shape figure) and a DSM without its cell size are not checked.
+    assert "georeference_shape" not in checks_by_name(survey_quality(stages(segment(), dsm=dsm)))
+    no_cell = survey_quality(stages(photo_segment(0.071), dsm={"dsm": {}}))
+    assert "georeference_shape" not in checks_by_name(no_cell)
+
+
 def test_report_carries_the_verdict_and_each_failed_check_among_its_warnings(tmp_path):
     geo = stages(segment(after=(6.0, 8.0)), warnings=["the time offset is uncertain"])
     (tmp_path / "georeference.json").write_text(json.dumps(geo["georeference"]))

@@ -206,6 +206,9 @@ class GeorefResult:
     # The GNSS drift fitted with the similarity (photo sets with stand-alone GPS); the
     # residuals above are after it.
     gnss_drift: GnssDrift | None = None
+    # Photo sets: how well the positions fix the fit's scale and rotation
+    # (robust_fit.shape_uncertainty): 1-sigma scale and rotation, 2-sigma at the edge.
+    shape_sigma: dict[str, float] | None = None
 
     @property
     def outliers(self) -> list[dict[str, Any]]:
@@ -223,6 +226,8 @@ class GeorefResult:
             out["photos"] = self.photos
         if self.gnss_drift is not None:
             out["gnss_drift"] = self.gnss_drift.to_dict()
+        if self.shape_sigma is not None:
+            out["shape_sigma"] = {k: round(v, 6) for k, v in self.shape_sigma.items()}
         return out
 
     def _base_dict(self) -> dict[str, Any]:

@@ -18,6 +18,11 @@ not got, such as the stated accuracy of a stand-alone GPS log, is not made):
 - `segments_dropped`: flight segments the georeference could not place and left out;
   passes while one remains (with none the job fails), its message says how many went.
 - `photo_outliers`: the share of a photo set's photos whose GPS was left out as wrong.
+- `georeference_shape`: how well a photo set's GPS positions fix the map's scale and
+  rotation (`robust_fit.shape_uncertainty`): the 2-sigma position error they leave at the
+  camera farthest from the centre, against 2 cells of the DSM. Stand-alone GPS over a small
+  site misses it (decimetre noise over tens of metres: centimetres at the edge); it says so
+  rather than let the DSM's and the orthophoto's cell size promise more.
 - `time_offset`: a video's offset to its flight log could be tied down (the log's clock,
   its recording span, the video's creation time or the image motion); an ambiguous one
   (`time_offset.TimeOffset.ambiguous_reason`) fails, since positions matched to the wrong
@@ -59,6 +64,9 @@ class QualityBounds:
     # The robust photo fit names a few wrong GPS fixes; when more than this share of the
     # photos is wrong the remaining ones are suspect too (bad reception, a wrong log).
     max_photo_outlier_share: float = 0.2
+    # A map whose scale and rotation the positions fix only to more than this many DSM
+    # cells at its edge places far features off by more than its own resolution shows.
+    max_shape_error_cells: float = 2.0
 
 
 def survey_quality(
@@ -75,6 +83,7 @@ def survey_quality(
         _overlap_check(dsm, bounds),
         _segments_check(geo, segments) if geo else None,
         _photo_check(geo.get("photos"), bounds),
+        _shape_check(segments, dsm, bounds),
         _time_offset_check(geo.get("time_offset")),
     ]
     checks = [c for c in found if c is not None]
@@ -266,6 +275,38 @@ def _photo_check(
             "remaining photos is suspect too (bad reception or a wrong log)."
         )
     return _check("photo_outliers", share, bound, passed, message)
+
+
+def _shape_check(
+    segments: list[dict[str, Any]], dsm: dict[str, Any], bounds: QualityBounds
+) -> dict[str, Any] | None:
+    shapes = [(seg.get("fit") or {}).get("shape_sigma") for seg in segments]
+    shapes = [shape for shape in shapes if shape]
+    cell = (dsm.get("dsm") or {}).get("resolution_m")
+    if not shapes or not cell:
+        return None  # a video survey, or a result from before the figure
+    shape = max(shapes, key=lambda s: s["at_edge_m"])
+    error = shape["at_edge_m"]
+    bound = bounds.max_shape_error_cells * cell
+    passed = error <= bound
+    figures = (
+        f"scale within {100 * shape['scale']:.2f} % and rotation within "
+        f"{shape['rotation_deg']:.2f}° (1 sigma): up to {100 * error:.1f} cm at the site's "
+        f"edge (2 sigma)"
+    )
+    if passed:
+        message = (
+            f"The GPS positions fix the map's {figures}, within the "
+            f"{bounds.max_shape_error_cells:g} DSM cells ({100 * bound:.1f} cm) allowed."
+        )
+    else:
+        message = (
+            f"The GPS positions fix the map's {figures}, more than the "
+            f"{bounds.max_shape_error_cells:g} DSM cells ({100 * bound:.1f} cm) allowed: "
+            "features far from the centre may sit that far from their true place (RTK "
+            "positions or ground control points would fix it)."
+        )
+    return _check("georeference_shape", error, bound, passed, message)
 
 
 # How each source of the offset is told in a message.

@@ -324,6 +324,42 @@ def photo_fit(
     return drifting if plain_chi2 - drift_chi2 > 2.0 * np.log(len(local)) else fit
 
 
+def shape_uncertainty(
+    world: np.ndarray,
+    t: np.ndarray,
+    sigma_h: float,
+    drift_sigma_m: float | None,
+) -> dict[str, float]:
+    """How well horizontal positions of accuracy `sigma_h` (m, per axis) fix a fit's scale
+    and rotation: the linearised least squares of shift, scale, rotation (and, with
+    `drift_sigma_m`, the drift's two rates and their prior) over the positions `world` at
+    camera times `t`. `at_edge_m`: twice the resulting position error at the camera
+    farthest from the centre (scale and rotation together)."""
+    xy = world[:, :2] - world[:, :2].mean(axis=0)
+    n = len(xy)
+    tau = t - t.mean()
+    one, zero = np.ones(n), np.zeros(n)
+    # Columns: east shift, north shift, relative scale, rotation (rad), drift rates.
+    east = np.column_stack([one, zero, xy[:, 0], -xy[:, 1]])
+    north = np.column_stack([zero, one, xy[:, 1], xy[:, 0]])
+    if drift_sigma_m is not None:
+        east = np.column_stack([east, tau, zero])
+        north = np.column_stack([north, zero, tau])
+    design = np.vstack([east, north]) / sigma_h
+    normal = design.T @ design
+    if drift_sigma_m is not None:
+        span = max(float(np.ptp(t)), 1e-3)
+        normal[4:, 4:] += np.eye(2) * (span / drift_sigma_m) ** 2
+    covariance = np.linalg.pinv(normal)
+    scale, rotation = np.sqrt(np.diag(covariance)[2:4])
+    radius = float(np.hypot(xy[:, 0], xy[:, 1]).max())
+    return {
+        "scale": float(scale),
+        "rotation_deg": float(np.degrees(rotation)),
+        "at_edge_m": float(2.0 * radius * np.hypot(scale, rotation)),
+    }
+
+
 def photo_table(
     names: list[str], residuals: np.ndarray, used: np.ndarray, normalised: np.ndarray | None
 ) -> list[dict[str, Any]]:
@@ -430,6 +466,12 @@ def georeference_photos(
     rows = photo_table(pair_names, fit.residuals, fit.used, fit.normalised)
     warnings = [w for w in [outlier_warning(rows)] if w]
     used = fit.used
+    shape = shape_uncertainty(
+        pairs.world[used],
+        pairs.t[used],
+        float(fit.sigmas[0]) if stated is None else float(stated.median[0]),
+        None if fit.drift is None else options.photo_drift_sigma_m,
+    )
     # The log's positions less the drift fitted with them: the residuals are the rest.
     world = pairs.world if fit.drift is None else pairs.world - fit.drift.at(pairs.t)
     residuals = residual_stats(fit.similarity.apply(pairs.local[used]), world[used])
@@ -461,6 +503,7 @@ def georeference_photos(
         stated_sigma=None if stated is None else stated.median,
         within_stated_accuracy=within,
         gnss_drift=fit.drift,
+        shape_sigma=shape,
     )
 
 

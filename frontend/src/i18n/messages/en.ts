@@ -381,6 +381,7 @@ export const messages = {
   "quality.overlap_coverage": "measured heights where two or more cameras overlap",
   "quality.segments_dropped": "flight segments left out",
   "quality.photo_outliers": "photos whose GPS positions disagree with the others",
+  "quality.georeference_shape": "how well the GPS positions fix the map's scale and rotation",
   "quality.time_offset": "offset between the video's and the log's clocks",
   "jobs.logsOriginal": "The log lines as the worker wrote them, in English.",
   "warnings.serverOriginal": "Each as the server wrote it, in English:",

@@ -369,6 +369,7 @@ const messages: Messages = {
   "quality.overlap_coverage": "複数のカメラに写る範囲で標高を計測できた割合",
   "quality.segments_dropped": "地上に配置できなかった飛行区間",
   "quality.photo_outliers": "GPS 位置が他と食い違う写真",
+  "quality.georeference_shape": "GPS 位置から定まる地図の縮尺と回転の精度",
   "quality.time_offset": "動画とフライトログの時刻のずれ",
   "jobs.logsOriginal": "ワーカーが出力したログの原文（英語）です。",
   "warnings.serverOriginal": "各警告はサーバーが出力した原文（英語）です：",
