@@ -36,7 +36,8 @@ error after the common offset fell from 4.7 to 2.8 cm (median; p90 7.9 to 5.0, w
 to 8.4) with the stand-alone model, likewise with drift time constants of 60 s and 1000 s
 and a 1 m drift; consumer GPS 21.3 to 18.5 cm (p90 and worst equal); the field model
 (multipath, geometry steps) unchanged; stand-alone with 0.3 m noise 6.0 to 4.7 cm, but its
-worst track 12.9 to 13.7 cm.
+worst track 12.9 to 13.7 cm. (The criterion and the free vertical were chosen on these
+models: fitted figures; docs/reconstruction.md gives the unfitted ones.)
 
 Photos that state their own position accuracy (DJI RTK: `RtkStdLon/Lat/Hgt`, the log's
 `position_sigma`) add it to the fit's sigma per photo, so a photo stating none among RTK
