@@ -15,7 +15,12 @@ from worker.pipeline.change_regions import (
     significant_regions,
 )
 from worker.pipeline.difference import GAIN, LOSS
-from worker.pipeline.error_model import LOD_Z, fit_error_model, terrain_attributes
+from worker.pipeline.error_model import (
+    LOD_Z,
+    _fill_and_make_monotone,
+    fit_error_model,
+    terrain_attributes,
+)
 
 PIXEL = 0.5
 
@@ -54,6 +59,22 @@ def test_recovers_a_known_sigma_of_slope_within_10_percent():
     assert all(0.9 <= r <= 1.1 for r in ratios), ratios
     # The errors' short correlation range: a 2-pixel gaussian is about 4 pixels wide.
     assert PIXEL <= model.correlation_length_m <= 8 * PIXEL
+
+
+def test_the_sigma_table_never_falls_with_slope_or_curvature():
+    """A bin that reads low (few pixels, or change in its neighbour) must not make a
+    steeper or rougher bin's LoD lower than a gentler one's: the table is monotone along
+    both axes, nearest to the binned values where they are already in order."""
+    rng = np.random.default_rng(5)
+    sigma = np.sort(rng.uniform(0.03, 0.12, size=(4, 13)), axis=1)
+    sigma[:, 2] += 0.05  # a contaminated gentle bin above the steeper ones
+    sigma[3, 0] = 0.002  # a rough flat bin below the smooth one
+    counts = rng.integers(10, 100_000, size=sigma.shape)
+    table = _fill_and_make_monotone(sigma, counts, fallback=0.05)
+    assert (np.diff(table, axis=1) >= 0).all()
+    assert (np.diff(table, axis=0) >= 0).all()
+    ordered = np.tile(np.linspace(0.03, 0.2, 13), (4, 1)) * np.linspace(1.0, 1.3, 4)[:, None]
+    np.testing.assert_allclose(_fill_and_make_monotone(ordered, counts, 0.05), ordered)
 
 
 def test_per_pixel_lod_covers_95_percent_on_flat_and_steep_ground():

@@ -314,12 +314,34 @@ def _fill_and_make_monotone(sig: np.ndarray, cnt: np.ndarray, fallback: float) -
     column = np.nanmedian(np.where(np.isfinite(out), out, np.nan), axis=0)
     column = np.where(np.isfinite(column), column, fallback)
     out = np.where(np.isfinite(out), out, column[None, :])
-    weights = np.maximum(cnt, 1).astype(float)
-    for i in range(out.shape[0]):
-        out[i] = _isotonic(out[i], weights[i])
-    for j in range(out.shape[1]):
-        out[:, j] = _isotonic(out[:, j], weights[:, j])
+    out = _monotone_both_axes(out, np.maximum(cnt, 1).astype(float))
     return np.maximum(out, 1e-6)
+
+
+def _monotone_both_axes(
+    values: np.ndarray, weights: np.ndarray, iterations: int = 100
+) -> np.ndarray:
+    """The table nearest to `values` (weighted least squares) that is non-decreasing
+    along both axes: Dykstra's alternating projections onto the row- and the
+    column-monotone tables. One pass along each axis is not enough: pooling a column
+    can undo a row's order (a steep bin then reads lower than a gentler one).
+    A running maximum along both axes removes what the iterations leave below their
+    tolerance, so the result is exactly monotone."""
+    x = values.astype(float).copy()
+    p = np.zeros_like(x)
+    q = np.zeros_like(x)
+    for _ in range(iterations):
+        y = x + p
+        z = np.stack([_isotonic(row, w) for row, w in zip(y, weights, strict=True)])
+        p = y - z
+        y = z + q
+        new = np.stack([_isotonic(col, w) for col, w in zip(y.T, weights.T, strict=True)], axis=1)
+        q = y - new
+        done = np.allclose(new, x, rtol=0.0, atol=1e-9)
+        x = new
+        if done:
+            break
+    return np.maximum.accumulate(np.maximum.accumulate(x, axis=1), axis=0)
 
 
 def _isotonic(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
