@@ -15,14 +15,17 @@ Detectors, each giving a label per test patch:
 - threshold_20cm / threshold_30cm: |post - pre| > t on the raw pair (the paper's Fig. 9
   binarisation); a patch is positive when more than 10 % of its centre is above t. At
   full scale the thresholds are scaled like the registration error (2 m / 3 m).
-- lod: the platform's threshold comparison (align -> coregister -> difference ->
-  vectorize, LoD95 = 1.96 NMAD): its polygons rasterised on the grid, then the 10 % rule.
-  The minimum polygon area scales with the pixel size: 25 m2 at 20 cm (625 pixels).
+- lod: the platform's threshold comparison, its default method (align -> coregister ->
+  difference -> vectorize, the per-pixel LoD95 of the error model learnt from the
+  difference): its polygons rasterised on the grid, then the 10 % rule. The minimum
+  polygon area scales with the pixel size: 25 m2 at 20 cm (625 pixels).
+- lod_uniform: the same with one NMAD for the whole raster (the simple baseline the
+  default must not fall below).
 - best: the comparison's cnn method (align -> coregister -> difference -> detect with
   SlideNet): its landslide polygons (pixels with probability >= the model's pixel
   threshold, grouped, kept when their score reaches the card's min_score) rasterised on
   the grid, then the 10 % rule.
-- scored: the comparison's default scored method on the same first stages (its score
+- scored: the comparison's scored method on the same first stages (its score
   stage: significant-change candidates scored by the calibrated scorer), rasterised
   likewise.
 
@@ -81,6 +84,7 @@ METHOD_ORDER = (
     "threshold_20cm",
     "threshold_30cm",
     "lod",
+    "lod_uniform",
     "best",
     "scored",
 )
@@ -222,6 +226,21 @@ def evaluate_pattern(
     }
     run.extra["lod_m"] = result.results["difference"]["lod_m"]
 
+    uniform = ComparisonOptions.from_dict(
+        {"method": "threshold", "difference": {"error_model": "uniform"}}
+    )
+    uniform.detection.min_area_m2 = options.detection.min_area_m2
+    t0 = time.perf_counter()
+    baseline = compare_dsms(
+        inputs / "pre.tif", inputs / "post.tif", work / "comparison-uniform", uniform
+    )
+    run.seconds["lod_uniform"] = time.perf_counter() - t0
+    run.predictions["lod_uniform"] = patch_labels_from_pixels(
+        rasterize_detections(baseline.detections_path, pre.shape, aligned_transform, aligned_crs),
+        patches,
+    )
+    run.extra["lod_uniform_m"] = baseline.results["difference"]["lod_m"]
+
     if best is not None:
         options = ComparisonOptions(method="cnn")
         options.detection.model = str(best.path.with_suffix(".json"))
@@ -338,6 +357,13 @@ def false_alarms(
     lod = compare_dsms(
         work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", threshold
     )
+    uniform = ComparisonOptions.from_dict(
+        {"method": "threshold", "difference": {"error_model": "uniform"}}
+    )
+    uniform.detection.min_area_m2 = threshold.detection.min_area_m2
+    baseline = compare_dsms(
+        work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp-uniform", uniform
+    )
     cnn = ComparisonOptions(method="cnn")
     cnn.detection.model = str(best.path.with_suffix(".json"))
     cnn.detection.num_threads = threads
@@ -357,6 +383,7 @@ def false_alarms(
         "cnn_positive_patches": int(labels[usable].sum()),
         "patches": int(usable.sum()),
         "lod_detections": lod.results["vectorize"]["detections"],
+        "lod_uniform_detections": baseline.results["vectorize"]["detections"],
         "coregister": {
             k: lod.results["coregister"][k] for k in ("shift_east_m", "shift_north_m", "shift_up_m")
         },
