@@ -35,7 +35,8 @@ from scipy import ndimage, optimize
 
 LOD_Z = 1.96  # two-sided 95 % for a normal error
 SLOPE_EDGES_DEG = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 60.0, 70.0, 90.0)
-CURVATURE_BINS = 4  # quantile bins of |curvature|
+# Quantiles of |curvature| that bound its bins.
+CURVATURE_QUANTILES: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
 # Lag bin edges of the empirical variogram, in pixels (upper bounds).
 LAG_EDGES_PX = (1.5, 2.5, 3.5, 5, 7, 10, 14, 20, 28, 40, 56, 80, 112, 160, 224, 320, 448)
 
@@ -257,7 +258,7 @@ def _fit_heteroscedasticity(
     c = curvature.ravel()[index].astype(np.float64)
     median = float(np.median(values))
     nmad = float(robust_nmad(values))
-    curv_edges = np.unique(np.quantile(c, np.linspace(0, 1, CURVATURE_BINS + 1)))
+    curv_edges = np.unique(np.quantile(c, CURVATURE_QUANTILES))
     if curv_edges.size < 2:
         curv_edges = np.array([c.min(), c.min() + 1e-9])
     curv_edges[-1] += 1e-9
