@@ -91,6 +91,17 @@ METHOD_ORDER = (
 LOD_MIN_AREA_PX = 625  # 25 m2 at 20 cm, the platform's default minimum area
 
 
+def lod_options(pixel_size_m: float, error_model: str = "heteroscedastic") -> ComparisonOptions:
+    """The threshold method as this protocol runs it: its per-pixel error model (the
+    default) or one NMAD for the raster ("uniform", the baseline), the minimum area
+    scaled with the pixel size."""
+    options = ComparisonOptions.from_dict(
+        {"method": "threshold", "difference": {"error_model": error_model}}
+    )
+    options.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
+    return options
+
+
 @dataclass
 class TestPatches:
     rows: np.ndarray  # 1-D grid origins
@@ -206,10 +217,10 @@ def evaluate_pattern(
     inputs = work / "input"
     write_geotiff(inputs / "pre.tif", pre, transform, crs)
     write_geotiff(inputs / "post.tif", post, transform, crs)
-    options = ComparisonOptions(method="threshold")
-    options.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
     t0 = time.perf_counter()
-    result = compare_dsms(inputs / "pre.tif", inputs / "post.tif", work / "comparison", options)
+    result = compare_dsms(
+        inputs / "pre.tif", inputs / "post.tif", work / "comparison", lod_options(pixel_size_m)
+    )
     run.seconds["lod"] = time.perf_counter() - t0
     with rasterio.open(work / "comparison" / "pre_aligned.tif") as src:
         grid_ok = src.shape == pre.shape and src.transform.almost_equals(transform)
@@ -226,13 +237,12 @@ def evaluate_pattern(
     }
     run.extra["lod_m"] = result.results["difference"]["lod_m"]
 
-    uniform = ComparisonOptions.from_dict(
-        {"method": "threshold", "difference": {"error_model": "uniform"}}
-    )
-    uniform.detection.min_area_m2 = options.detection.min_area_m2
     t0 = time.perf_counter()
     baseline = compare_dsms(
-        inputs / "pre.tif", inputs / "post.tif", work / "comparison-uniform", uniform
+        inputs / "pre.tif",
+        inputs / "post.tif",
+        work / "comparison-uniform",
+        lod_options(pixel_size_m, "uniform"),
     )
     run.seconds["lod_uniform"] = time.perf_counter() - t0
     run.predictions["lod_uniform"] = patch_labels_from_pixels(
@@ -352,24 +362,15 @@ def false_alarms(
     work = Path(work_dir)
     write_geotiff(work / "input" / "pre.tif", pre, transform, crs)
     write_geotiff(work / "input" / "post.tif", post, transform, crs)
-    threshold = ComparisonOptions(method="threshold")
-    threshold.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
-    lod = compare_dsms(
-        work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", threshold
-    )
-    uniform = ComparisonOptions.from_dict(
-        {"method": "threshold", "difference": {"error_model": "uniform"}}
-    )
-    uniform.detection.min_area_m2 = threshold.detection.min_area_m2
+    pre_path, post_path = work / "input" / "pre.tif", work / "input" / "post.tif"
+    lod = compare_dsms(pre_path, post_path, work / "cmp", lod_options(pixel_size_m))
     baseline = compare_dsms(
-        work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp-uniform", uniform
+        pre_path, post_path, work / "cmp-uniform", lod_options(pixel_size_m, "uniform")
     )
     cnn = ComparisonOptions(method="cnn")
     cnn.detection.model = str(best.path.with_suffix(".json"))
     cnn.detection.num_threads = threads
-    detect = run_stage(
-        "detect", work / "input" / "pre.tif", work / "input" / "post.tif", work / "cmp", cnn
-    )
+    detect = run_stage("detect", pre_path, post_path, work / "cmp", cnn)
     rows, cols = patch_origins(pre.shape)
     with rasterio.open(work / "cmp" / "pre_aligned.tif") as src:
         found = rasterize_detections(
@@ -424,6 +425,7 @@ __all__ = [
     "evaluate_pattern",
     "false_alarms",
     "format_table",
+    "lod_options",
     "patch_labels_from_pixels",
     "rasterize_detections",
     "score",
