@@ -1,7 +1,8 @@
 """Co-register the post DSM to the pre DSM on stable terrain.
 
 Model: corrected_post(x, y) = post(x - east, y - north) - plane(x, y), where (east, north)
-is the horizontal correction found by Nuth & Kääb (2011) (xdem.coreg.NuthKaab) and
+is the horizontal correction found by Nuth & Kääb (2011) (nuth_kaab.py: xdem's NuthKaab
+iteration, vectorised) and
 plane = a + b (x - xc) + c (y - yc) the vertical correction: a constant offset, plus a tilt
 when `tilt` is on. The reported shift (shift_east_m, shift_north_m, shift_up_m) is the
 correction applied to post: the opposite of post's displacement relative to pre;
@@ -42,7 +43,6 @@ than without; Nuth & Kääb refines from there (`initial_shift_*` in the result)
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +54,7 @@ from scipy import ndimage
 from worker.pipeline.coarse_shift import coarse_shift
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import is_metric_projected
+from worker.pipeline.nuth_kaab import NuthKaabError, nuth_kaab_shift
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.raster_io import MASK_NODATA, read_elevation, warp_elevation, write_geotiff
 from worker.pipeline.stages import StageResult
@@ -406,28 +407,19 @@ def _nuth_kaab(
     options: CoregisterOptions,
 ) -> tuple[float, float]:
     """Horizontal correction (east, north) in metres to apply to post."""
-    import xdem  # slow to import; only this stage needs it
-
-    coreg = xdem.coreg.NuthKaab(
-        max_iterations=options.nuth_kaab_max_iterations,
-        offset_threshold=options.nuth_kaab_tolerance_px,
-        subsample=options.subsample,
-    )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            coreg.fit(
-                pre,
-                post,
-                inlier_mask=stable,
-                transform=transform,
-                crs=crs,
-                random_state=options.seed,
-            )
-        except ValueError as exc:
-            raise InputError(f"co-registration failed to converge ({exc})") from exc
-    affine = coreg.meta["outputs"]["affine"]
-    return float(affine["shift_x"]), float(affine["shift_y"])
+    try:
+        return nuth_kaab_shift(
+            pre,
+            post,
+            stable,
+            (abs(transform.a), abs(transform.e)),
+            max_iterations=options.nuth_kaab_max_iterations,
+            tolerance_px=options.nuth_kaab_tolerance_px,
+            subsample=options.subsample,
+            seed=options.seed,
+        )
+    except NuthKaabError as exc:
+        raise InputError(f"co-registration failed to converge ({exc})") from exc
 
 
 def _apply_shift(

@@ -7,9 +7,9 @@ is therefore too strict on flat ground and far too loose on steep slopes. This m
 fits, from the difference itself:
 
 - **heteroscedasticity**: sigma_dh as a function of slope and curvature, the NMAD of dh
-  in bins of both (xdem.spatialstats.nd_binning), made non-decreasing in each by
-  isotonic regression so that one contaminated bin cannot lower a steeper one, and
-  interpolated per pixel;
+  in bins of both (as xdem.spatialstats.nd_binning gives it, by one sort: binned.py),
+  made non-decreasing in each by isotonic regression so that one contaminated bin cannot
+  lower a steeper one, and interpolated per pixel;
 - **spatial correlation**: the empirical variogram of the standardised difference
   z = (dh - median) / sigma_dh (all pixel pairs, by FFT) and a fit of a nugget plus two
   spherical models (a short and a long range);
@@ -32,6 +32,9 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage, optimize
+
+from worker.pipeline.binned import bin_index, binned_nmad
+from worker.pipeline.binned import nmad as robust_nmad
 
 LOD_Z = 1.96  # two-sided 95 % for a normal error
 SLOPE_EDGES_DEG = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 60.0, 70.0, 90.0)
@@ -245,11 +248,6 @@ def _fit_heteroscedasticity(
     rng: np.random.Generator,
     options: ErrorModelOptions,
 ) -> ErrorModel:
-    # Imported here: xdem takes 1.5 s to import, and every worker process (and the API's)
-    # imports this module whether or not it ever fits an error model.
-    import xdem.spatialstats as xss
-    from geoutils.stats import nmad as robust_nmad
-
     index = np.flatnonzero(stable.ravel())
     if index.size > options.max_samples:
         index = np.sort(rng.choice(index, options.max_samples, replace=False))
@@ -257,30 +255,18 @@ def _fit_heteroscedasticity(
     s = slope.ravel()[index].astype(np.float64)
     c = curvature.ravel()[index].astype(np.float64)
     median = float(np.median(values))
-    nmad = float(robust_nmad(values))
+    nmad = robust_nmad(values)
     curv_edges = np.unique(np.quantile(c, CURVATURE_QUANTILES))
     if curv_edges.size < 2:
         curv_edges = np.array([c.min(), c.min() + 1e-9])
     curv_edges[-1] += 1e-9
     slope_edges = np.asarray(SLOPE_EDGES_DEG, dtype=float)
-    table = xss.nd_binning(
-        values - median,
-        [s, c],
-        ["slope", "curvature"],
-        list_var_bins=[slope_edges, curv_edges],
-        statistics=["count", robust_nmad],
-    )
-    full = table[table["slope"].notna() & table["curvature"].notna()] if len(table) else table
     n_s, n_c = slope_edges.size - 1, curv_edges.size - 1
-    sig = np.full((n_c, n_s), np.nan)
-    cnt = np.zeros((n_c, n_s), dtype=int)
-    for _, row in full.iterrows():
-        i_s = int(np.searchsorted(slope_edges, row["slope"].mid) - 1)
-        i_c = int(np.searchsorted(curv_edges, row["curvature"].mid) - 1)
-        if 0 <= i_s < n_s and 0 <= i_c < n_c:
-            cnt[i_c, i_s] = int(row["count"])
-            if row["count"] >= options.min_bin_count:
-                sig[i_c, i_s] = float(row["nmad"])
+    i_s, i_c = bin_index(s, slope_edges), bin_index(c, curv_edges)
+    cell = np.where((i_s >= 0) & (i_c >= 0), i_c * n_s + i_s, -1)
+    counts, nmads = binned_nmad(values - median, cell, n_c * n_s)
+    cnt = counts.reshape(n_c, n_s)
+    sig = np.where(cnt >= options.min_bin_count, nmads.reshape(n_c, n_s), np.nan)
     # Keep only slope bins that hold data at all; empty ones would be pure extrapolation.
     used = cnt.sum(axis=0) > 0
     slope_centres = 0.5 * (slope_edges[:-1] + slope_edges[1:])

@@ -1,0 +1,60 @@
+"""Medians and NMADs of values in bins, by one sort.
+
+scipy's `binned_statistic` (which xdem's `nd_binning` and `NuthKaab` use) takes a median
+or an NMAD through a Python callable, and for a callable it appends every sample to a
+list: 0.1-0.3 s per call on a few hundred thousand samples, called at every Nuth & Kääb
+step and every error-model fit. These give the same figures from one `lexsort`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+NMAD_FACTOR = 1.4826  # the NMAD of a normal distribution is its sigma
+
+
+def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The bin of each value (edges ascending; the last edge closes the last bin, as in
+    numpy's and scipy's histograms); -1 outside the edges or NaN."""
+    index = np.searchsorted(edges, values, side="right") - 1
+    index[values == edges[-1]] = edges.size - 2
+    index[(index < 0) | (index > edges.size - 2) | ~np.isfinite(values)] = -1
+    return index
+
+
+def binned_median(
+    values: np.ndarray, bins: np.ndarray, n_bins: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(count, median) of `values` in each of `n_bins` bins (`bins`: the bin of each value,
+    -1 for none); NaN median where a bin is empty."""
+    keep = bins >= 0
+    values, bins = values[keep], bins[keep]
+    counts = np.bincount(bins, minlength=n_bins)
+    medians = np.full(n_bins, np.nan)
+    if values.size:
+        order = np.lexsort((values, bins))
+        ordered = values[order]
+        starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+        filled = np.flatnonzero(counts)
+        lower = ordered[starts[filled] + (counts[filled] - 1) // 2]
+        upper = ordered[starts[filled] + counts[filled] // 2]
+        medians[filled] = 0.5 * (lower + upper)
+    return counts, medians
+
+
+def binned_nmad(values: np.ndarray, bins: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(count, NMAD) of `values` in each bin: 1.4826 x the median of |value - bin median|."""
+    counts, medians = binned_median(values, bins, n_bins)
+    keep = bins >= 0
+    deviations = np.full(values.shape, np.nan)
+    deviations[keep] = np.abs(values[keep] - medians[bins[keep]])
+    _, mad = binned_median(deviations, bins, n_bins)
+    return counts, NMAD_FACTOR * mad
+
+
+def nmad(values: np.ndarray) -> float:
+    """Normalised median absolute deviation of all the (finite) values."""
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return float("nan")
+    return float(NMAD_FACTOR * np.median(np.abs(values - np.median(values))))
