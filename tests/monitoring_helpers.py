@@ -228,7 +228,7 @@ class WebhookReceiver:
                 code = receiver.statuses.pop(0) if receiver.statuses else 200
                 self.send_response(code)
                 self.end_headers()
-                self.wfile.write(b"ok" if code == 200 else b"try later")
+                self.wfile.write(b"ok" if code == 200 else b"try later: db=10.0.0.5 token=t0p")
 
             def log_message(self, *args: object) -> None:
                 pass

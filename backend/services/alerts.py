@@ -615,7 +615,11 @@ def _send(settings: Settings, request: _Request) -> tuple[int | None, str | None
             return None, f"{type(exc).__name__}: {exc}"
         if 200 <= response.status_code < 300:
             return response.status_code, None
-        return response.status_code, f"HTTP {response.status_code}: {response.text[:200]}"
+        # The status and its reason phrase only: what the receiver wrote back is its own
+        # (an internal service on the allow-list may answer with its data), and the log
+        # is readable by every member of the site.
+        reason = response.reason_phrase or ""
+        return response.status_code, f"HTTP {response.status_code} {reason}".rstrip()
     try:
         send_email(settings, request.recipients, request.subject, request.text, request.attachment)
     except (OSError, smtplib.SMTPException, ValueError) as exc:
