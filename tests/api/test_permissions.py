@@ -22,7 +22,8 @@ from backend.api.access import PERMISSION_ATTRIBUTE
 from backend.api.routes import __path__ as ROUTES_PATH
 from backend.db.models import Organisation
 from backend.services.users import create_user
-from tests.api_helpers import join
+from tests.api_helpers import join, run_job_inline
+from tests.monitoring_helpers import finished_comparison
 
 PASSWORD = "landslide-2026"
 # Routes open to all, each for its reason.
@@ -268,3 +269,78 @@ def test_tokens_held_to_a_site_and_a_role_and_a_services_token(
         headers=people["admin"],
     )
     assert refused.status_code == 422 and "platform administrator" in refused.json()["detail"]
+
+
+def _tile_at(center: list[float], zoom: int) -> tuple[int, int, int]:
+    """The web-mercator tile (z, x, y) holding a TileJSON's centre."""
+    import math
+
+    lon, lat = center[0], center[1]
+    n = 2**zoom
+    x = int((lon + 180.0) / 360.0 * n)
+    y = int((1.0 - math.asinh(math.tan(math.radians(lat))) / math.pi) / 2.0 * n)
+    return zoom, x, y
+
+
+def test_every_object_of_a_site_is_unseen_by_a_token_without_a_role_on_it(
+    app: FastAPI, client: TestClient, auth: dict, people: dict, dsm_pair_files
+) -> None:
+    """Every GET route of the API at a real site's real objects (surveys, a finished
+    comparison, its detections, products, tiles, jobs, a schedule, a report, OGC and STAC
+    items): 404 for a token of another organisation, never 403 (which would tell that the
+    object exists) nor the object; the site's manager opens each one."""
+    ids = finished_comparison(client, auth, dsm_pair_files, name="North gully")
+    site, comparison = ids["site"], ids["comparison"]
+    s = f"/api/v1/sites/{site}"
+    schedule = client.post(f"{s}/schedules", json={"cron": "0 6 * * 1"}, headers=auth).json()
+    report = client.post(f"{s}/reports", json={}, headers=auth).json()
+    run_job_inline(report["job_id"], "build")
+    product = client.get(f"{s}/comparisons/{comparison}/products", headers=auth).json()[0]
+    detection = client.get(f"{s}/comparisons/{comparison}/detections", headers=auth).json()
+    feature_id = detection["features"][0]["id"]
+    tilejson = client.get(f"{s}/comparisons/{comparison}/tiles/dh/tilejson.json", headers=auth)
+    z, x, y = _tile_at(tilejson.json()["center"], tilejson.json()["maxzoom"])
+    real = {
+        "site_id": site,
+        "survey_id": ids["pre"],
+        "comparison_id": comparison,
+        "job_id": ids["job"],
+        "product_id": product["id"],
+        "schedule_id": schedule["id"],
+        "report_id": report["id"],
+        "detection_id": feature_id,
+        "layer": "dh",
+        "z": z,
+        "x": x,
+        "y": y,
+        "file_format": "gpkg",
+    }
+    paths = [
+        path.format(**real)
+        for path, operations in app.openapi()["paths"].items()
+        if "get" in operations and path.startswith("/api/v1/sites/{site_id}")
+    ]
+    # A survey's layer is its DSM; the job's event stream is a stream (checked for the
+    # outsider only); OGC and STAC items of the site's objects.
+    survey_tiles = f"surveys/{ids['pre']}/tiles/"
+    paths = [p.replace(f"{survey_tiles}dh", f"{survey_tiles}dsm") for p in paths]
+    paths += [
+        f"/ogc/collections/sites/items/{site}",
+        f"/ogc/collections/surveys/items/{ids['pre']}",
+        f"/ogc/collections/detections/items/{feature_id}",
+        f"/stac/sites/{site}/collection.json",
+        f"/stac/sites/{site}/surveys/{ids['pre']}/item.json",
+        f"/stac/sites/{site}/comparisons/{comparison}/item.json",
+    ]  # fmt: skip
+    # The query each of those needs to answer at all (the TileJSON's centre for a point).
+    lon, lat = tilejson.json()["center"][:2]
+    queries = {"/schedules/preview": "?cron=0+6+*+*+1", "/heights": f"?lon={lon}&lat={lat}"}
+    paths = [p + next((q for end, q in queries.items() if p.endswith(end)), "") for p in paths]
+    assert len(paths) >= 46
+    for path in paths:
+        seen = client.get(path, headers=people["outsider"])
+        assert seen.status_code == 404, (path, seen.status_code, seen.text[:200])
+        if path.endswith("/events"):
+            continue
+        opened = client.get(path, headers=people["manager"])
+        assert opened.status_code == 200, (path, opened.status_code, opened.text[:200])
