@@ -72,3 +72,42 @@ def test_a_lock_out_is_told_on_the_sign_in_form_and_after_it(page: Page, app_ser
         "too many failed sign-ins to the account 'nina'"
     )
     shot(page, "sign-in-locked")
+
+
+def test_the_platform_administrator_creates_disables_and_enables_a_user(
+    page: Page, app_server: App
+) -> None:
+    import httpx
+
+    from backend.db.tokens import create_token
+
+    engine = make_engine(app_server.settings.resolved_database_url)
+    with engine.begin() as connection, Session(bind=connection) as session:
+        token = create_token(session, "platform")  # as `slidewatch create-token` makes it
+        session.flush()
+    engine.dispose()
+    page.goto(app_server.url + "/")
+    page.get_by_text("Sign in with an API token instead").click()
+    page.get_by_label("API token").fill(token)
+    page.get_by_role("button", name="Use token").click()
+    page.get_by_role("link", name="Account").click()
+    expect(page.get_by_role("heading", name="Users")).to_be_visible()
+
+    page.get_by_label("New user's name").fill("kenji")
+    page.get_by_label("Full name").fill("Kenji Sato")
+    page.get_by_label("Password (at least 8 characters").fill("shamen-kansoku")
+    page.get_by_role("button", name="Create user").click()
+    row = page.locator("table.users tr", has_text="kenji")
+    expect(row).to_contain_text("Kenji Sato")
+
+    def signs_in() -> int:
+        body = {"username": "kenji", "password": "shamen-kansoku"}
+        return httpx.post(f"{app_server.url}/api/v1/auth/sign-in", json=body).status_code
+
+    assert signs_in() == 200
+    row.get_by_role("button", name="Disable").click()
+    expect(row).to_contain_text("disabled")
+    assert signs_in() == 401
+    row.get_by_role("button", name="Enable").click()
+    expect(row).not_to_contain_text("disabled")
+    assert signs_in() == 200

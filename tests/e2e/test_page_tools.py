@@ -105,12 +105,20 @@ def test_a_report_is_made_and_every_label_agrees(
     expect(
         page.locator("[data-survey-products]").first.get_by_role("button", name=re.compile("DSM"))
     ).to_be_visible()
-    with page.expect_download() as gpkg:
-        products.get_by_role("button", name="Detections as GeoPackage").click()
-    assert gpkg.value.suggested_filename.endswith(".gpkg")
-    saved = tmp_path / gpkg.value.suggested_filename
-    gpkg.value.save_as(saved)
-    assert [int(v) for v in pyogrio.read_dataframe(saved)["label"]] == compared_site.labels
+    # Every format of the detections, each read back by GDAL with the same labels.
+    for name, ending, reader in (
+        ("GeoPackage", ".gpkg", ""),
+        ("GeoJSON", ".geojson", ""),
+        ("KML", ".kml", ""),
+        ("Shapefile (zip)", ".shp.zip", "/vsizip/"),
+    ):
+        with page.expect_download() as detections:
+            products.get_by_role("button", name=f"Detections as {name}").click()
+        assert detections.value.suggested_filename.endswith(ending)
+        saved = tmp_path / detections.value.suggested_filename
+        detections.value.save_as(saved)
+        read = pyogrio.read_dataframe(f"{reader}{saved}")
+        assert [int(v) for v in read["label"]] == compared_site.labels, name
     with page.expect_download() as dsm:
         page.locator("[data-survey-products]").first.get_by_role(
             "button", name=re.compile("DSM")
