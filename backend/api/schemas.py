@@ -123,17 +123,28 @@ class ProductOut(ORMModel):
     created_at: datetime
 
 
+class QualityTextOut(BaseModel):
+    key: str = Field(description="e.g. `accuracy.horizontal`, `overlap.short`.")
+    figures: dict[str, str] = Field(description="The message's figures, as it writes them.")
+
+
 class QualityCheckOut(BaseModel):
     """One check of a survey's quality verdict (worker/pipeline/quality.py)."""
 
     name: str = Field(
         description="`georeference_accuracy`, `georeference_residual`, `overlap_coverage`, "
-        "`segments_dropped`, `photo_outliers` or `time_offset`."
+        "`segments_dropped`, `photo_outliers`, `georeference_shape` or `time_offset`."
     )
     value: float | None = Field(description="The survey's figure (metres, share or count).")
     bound: float | None = Field(description="The bound it is held to; None for a count.")
     passed: bool
     message: str = Field(description="The figure and its bound, in plain words.")
+    text: QualityTextOut | None = Field(
+        default=None,
+        description="The message as a key of the page's catalogues (`qualityText.<key>`) "
+        "and its figures, for a page in another language than the server's English; "
+        "none on checks made before it was recorded.",
+    )
 
 
 class QualityOut(BaseModel):

@@ -50,6 +50,9 @@ export interface QualityCheck {
   bound: number | null;
   passed: boolean;
   message: string;
+  /** The message as a catalogue key (`qualityText.<key>`) and its figures; absent on
+   * checks made before the server recorded it. */
+  text?: { key: string; figures: Record<string, string> } | null;
 }
 
 /** One uploaded input of a video or photo survey (GET …/surveys/{id}/files). */

@@ -89,6 +89,17 @@ it("shows every check behind the mark, escaped, and nothing for a survey that pa
   expect(box.innerHTML).not.toContain("<about 1 m>");
 });
 
+it("keeps the server's own words for a check with a key on an English page", () => {
+  const over: QualityCheck = {
+    ...check("georeference_residual", false, residual),
+    text: { key: "residual.over", figures: { segment: "", rms_h: "7.31", bound: "5.0" } },
+  };
+  expect(qualitySummary({ passed: false, checks: [over] })).toBe(`Missed its quality bounds: ${residual}`);
+  const box = document.createElement("div");
+  box.innerHTML = surveyWarningsHtml([residual], { passed: false, checks: [over] });
+  expect(box.querySelector("li")?.textContent).toBe(residual);
+});
+
 it("lists a comparison's warnings about its surveys' quality", () => {
   expect(comparisonWarningsHtml([])).toBe("");
   expect(comparisonWarningsHtml(undefined)).toBe("");
@@ -127,6 +138,28 @@ describe("on a Japanese page", () => {
     const missed = box.querySelectorAll(".survey-quality li")[1];
     expect(missed.textContent?.replace(/\s+/g, " ").trim()).toBe(`未達： 復元したカメラ位置と GPS 記録の差：${residual}`);
     expect(missed.querySelector("span[lang=en]")?.textContent).toBe(residual);
+  });
+
+  it("words a check in Japanese from its key and figures, and drops the English copy from the warnings", () => {
+    const over: QualityCheck = {
+      ...check("georeference_residual", false, residual),
+      text: { key: "residual.over", figures: { segment: "2", rms_h: "7.31", bound: "5.0" } },
+    };
+    const dropped: QualityCheck = {
+      ...check("segments_dropped", true, "1 of 3 flight segments could not be placed"),
+      text: { key: "segments.dropped", figures: { dropped: "1", total: "3", kept: "2" } },
+    };
+    const quality: SurveyQuality = { passed: false, checks: [dropped, over] };
+    const japanese = "調査がゆがんでいるか、フライトログが誤っている可能性があります：配置したカメラは記録された GPS 位置から 7.31 m（水平 RMS）（区間 2）離れており、単独測位 GPS に許される 5.0 m（1 回の飛行中のずれは約 1 m）を超えています。";
+    expect(qualitySummary(quality)).toBe(`品質基準を満たしていません：${japanese}`);
+    const box = document.createElement("div");
+    box.innerHTML = surveyQualityHtml(quality);
+    const items = box.querySelectorAll(".survey-quality li");
+    expect(items[0].textContent).toContain("飛行 3 区間のうち 1 区間を地上に配置できず除外しました。");
+    expect(items[1].textContent).toContain(japanese);
+    expect(box.innerHTML).not.toContain("span lang=\"en\"");
+    box.innerHTML = surveyWarningsHtml([residual, skipped], quality);
+    expect([...box.querySelectorAll("li")].map((li) => li.textContent)).toEqual([skipped]);
   });
 
   it("shows the server's message for a check it does not know", () => {

@@ -3,7 +3,7 @@
 // and a survey's quality verdict (`quality`) when it missed its bounds.
 
 import { escapeHtml } from "./format";
-import { serverWords, speaksServerLanguage, t } from "./i18n";
+import { serverMessage, serverWords, speaksServerLanguage, t } from "./i18n";
 import type { QualityCheck, SurveyQuality } from "./types";
 
 /** A warning as shown under its file, naming the file: the flight-log readers begin with
@@ -44,7 +44,11 @@ export function fileWarningsHtml(files: ReadonlyArray<{ name: string; warnings: 
 
 /** A survey's warnings (its files' and its reconstruction report's) in its row: the count
  * always in sight, each warning one click away; "" when there are none. */
-export function surveyWarningsHtml(warnings: readonly string[]): string {
+export function surveyWarningsHtml(warnings: readonly string[], quality?: SurveyQuality | null): string {
+  // A missed check's message is also among the warnings (the report lists it there);
+  // where the page words that check itself (surveyQualityHtml), its English copy is left out.
+  const worded = new Set((quality?.checks ?? []).filter((c) => checkMessage(c) !== null).map((c) => c.message));
+  warnings = warnings.filter((w) => !worded.has(w));
   if (!warnings.length) return "";
   return `<details class="notice survey-warnings">
       <summary>${t("warnings.surveyReadWith", { warnings: warningCount(warnings.length) })}</summary>
@@ -55,13 +59,28 @@ export function surveyWarningsHtml(warnings: readonly string[]): string {
  * on an English page, and for a check the catalogue does not know. */
 const checkWords = (check: QualityCheck) => serverWords(`quality.${check.name}`, check.message);
 
+/** A check's message in the page's language from its key and figures; null on a page in
+ * the server's language, or where the check has no key or the catalogue lacks it. */
+export function checkMessage(check: QualityCheck): string | null {
+  if (!check.text) return null;
+  const figures: Record<string, string | number> = { ...check.text.figures };
+  figures.where = figures.segment ? t("qualityText.segment", { n: figures.segment }) : "";
+  if (check.text.key === "timeOffset.matched") {
+    const source = serverMessage(`qualityText.offsetSource.${figures.source}`, {}) ?? String(figures.source);
+    const refined = figures.refined ? (serverMessage(`qualityText.offsetRefined.${figures.refined}`, {}) ?? "") : "";
+    figures.how = source + refined;
+  }
+  if (figures.dropped !== undefined) figures.count = Number(figures.dropped);
+  return serverMessage(`qualityText.${check.text.key}`, figures);
+}
+
 /** The line a survey that missed its quality bounds shows in sight: the first failed
  * check's message, and how many more failed; null when it passed or has no verdict yet. */
 export function qualitySummary(quality: SurveyQuality | null | undefined): string | null {
   const failed = quality?.checks.filter((c) => !c.passed) ?? [];
   if (!quality || quality.passed || !failed.length) return null;
   const more = failed.length > 1 ? t("warnings.andMore", { count: failed.length - 1 }) : "";
-  return t("warnings.missedBounds", { message: checkWords(failed[0]), more });
+  return t("warnings.missedBounds", { message: checkMessage(failed[0]) ?? checkWords(failed[0]), more });
 }
 
 /** A survey's quality verdict in its row: nothing while it passed, else a mark with the
@@ -85,6 +104,8 @@ export function surveyQualityHtml(quality: SurveyQuality | null | undefined): st
 function checkLineHtml(check: QualityCheck): string {
   const message = escapeHtml(check.message);
   if (speaksServerLanguage()) return message;
+  const own = checkMessage(check);
+  if (own !== null) return t("warnings.checkLine", { check: escapeHtml(checkWords(check)), message: escapeHtml(own) });
   const name = checkWords(check);
   const original = `<span lang="en">${message}</span>`;
   return name === check.message ? original : t("warnings.checkLine", { check: escapeHtml(name), message: original });

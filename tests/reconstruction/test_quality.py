@@ -4,6 +4,8 @@ verdict with every failed check among its warnings."""
 
 import json
 import math
+import re
+from pathlib import Path
 
 import pytest
 
@@ -57,6 +59,10 @@ def test_stated_accuracy_reports_the_worst_segment_against_its_bound():
         "bound": round(RTK_BOUND_H, 4),
         "passed": True,
         "message": check["message"],
+        "text": {
+            "key": "accuracy.within",
+            "figures": {"segment": "", "rms_h": "0.05", "bound_h": f"{RTK_BOUND_H:.2f}"},
+        },
     }
     assert "0.05 m" in check["message"] and "0.13 m" in check["message"]
     assert ok["passed"] is True
@@ -201,3 +207,77 @@ def test_report_carries_the_verdict_and_each_failed_check_among_its_warnings(tmp
     (miss,) = failed_messages(quality)
     assert "10.00 m (horizontal RMS)" in miss
     assert report["warnings"] == ["the time offset is uncertain", miss]
+
+
+EN_CATALOGUE = Path(__file__).parents[2] / "frontend/src/i18n/messages/en.ts"
+
+
+def _english_templates() -> dict[str, dict[str, str]]:
+    """The page's English `qualityText.*` messages: key -> {form: template}."""
+    text = EN_CATALOGUE.read_text()
+    found: dict[str, dict[str, str]] = {}
+    entry = re.compile(r'"qualityText\.([\w.]+)": (\{\n.*?\n  \}|"[^"]*")', re.DOTALL)
+    for key, body in entry.findall(text):
+        if body.startswith("{"):
+            found[key] = dict(re.findall(r'(\w+): "([^"]*)"', body))
+        else:
+            found[key] = {"other": body.strip('"')}
+    return found
+
+
+def _page_wording(check: dict, templates: dict[str, dict[str, str]]) -> str:
+    """The check's message as the page words it from `text` (frontend/src/warnings.ts)."""
+    figures = dict(check["text"]["figures"])
+    segment = figures.get("segment")
+    figures["where"] = templates["segment"]["other"].replace("{n}", segment) if segment else ""
+    if check["text"]["key"] == "timeOffset.matched":
+        refined = figures["refined"]
+        figures["how"] = templates[f"offsetSource.{figures['source']}"]["other"] + (
+            templates[f"offsetRefined.{refined}"]["other"] if refined else ""
+        )
+    forms = templates[check["text"]["key"]]
+    form = forms["one"] if figures.get("dropped") == "1" and "one" in forms else forms["other"]
+    return re.sub(r"\{(\w+)\}", lambda m: figures[m.group(1)], form)
+
+
+def test_the_pages_english_words_of_every_check_are_the_servers_message():
+    """Every check carries a catalogue key and figures (`text`) from which a page in another
+    language words it; the English catalogue's template, filled in, is the server's own
+    message, so the figures are complete and a translator works from the right text."""
+
+    def photos(outliers: int) -> list[dict]:
+        return [{"status": "outlier" if i < outliers else "used"} for i in range(10)]
+
+    shaped = segment()
+    shaped["fit"]["shape_sigma"] = {"scale": 0.0017, "rotation_deg": 0.1, "at_edge_m": 0.071}
+    dropped = "segment 1 left out: only 3 camera positions fall within the time span"
+    rtk_off = {"stated": RTK_SIGMA, "within": False}
+    matched = {"ambiguous_reason": None, "prior_source": "srt", "method": "trajectory_fit"}
+    unsure = {"ambiguous_reason": "two peaks 4.0 s apart", "prior_source": "log_start"}
+    surveys = [
+        stages(segment(stated=RTK_SIGMA, within=True)),
+        stages(segment(0), segment(1, fit_residuals=(0.2, 0.0, 0.0), **rtk_off)),
+        stages(segment(fit_residuals=(0.01, 0.0, 0.4), **rtk_off)),
+        stages(segment(fit_residuals=(0.01, 0.0, 0.01), **rtk_off)),
+        stages(segment(after=(3.0, 4.0)), dsm={"overlap_coverage": 0.8}),
+        stages(segment(0), segment(1, after=(3.0, 4.01)), dsm={"overlap_coverage": 0.79}),
+        stages(segment(0), warnings=[dropped]),
+        stages(segment(0), warnings=[dropped, dropped.replace("segment 1", "segment 2")]),
+        stages(segment(), georeference={"photos": photos(2)}),
+        stages(segment(), georeference={"photos": photos(3)}),
+        stages(shaped, dsm={"dsm": {"resolution_m": 0.02}}),
+        stages(shaped, dsm={"dsm": {"resolution_m": 0.05}}),
+        stages(segment(), georeference={"time_offset": matched}),
+        stages(segment(), georeference={"time_offset": unsure}),
+    ]
+    templates = _english_templates()
+    keys = set()
+    for survey in surveys:
+        for check in survey_quality(survey)["checks"]:
+            keys.add(check["text"]["key"])
+            assert _page_wording(check, templates) == check["message"], check["text"]
+    # Every message of the catalogue is made by some check above (the others are parts).
+    parts = {"segment"} | {
+        k for k in templates if k.startswith(("offsetSource.", "offsetRefined."))
+    }
+    assert keys == set(templates) - parts

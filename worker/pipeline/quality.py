@@ -96,15 +96,30 @@ def failed_messages(quality: dict[str, Any]) -> list[str]:
 
 
 def _check(
-    name: str, value: float | None, bound: float | None, passed: bool, message: str
+    name: str,
+    value: float | None,
+    bound: float | None,
+    passed: bool,
+    message: str,
+    text: tuple[str, dict[str, str]],
 ) -> dict[str, Any]:
+    key, figures = text
     return {
         "name": name,
         "value": None if value is None else round(float(value), 4),
         "bound": None if bound is None else round(float(bound), 4),
         "passed": bool(passed),
         "message": message,
+        # The message as a catalogue key and its figures (formatted as in the message),
+        # so that a page in another language words it in its own (frontend i18n
+        # `qualityText.*`); `message` stays the server's English.
+        "text": {"key": key, "figures": figures},
     }
+
+
+def _segment_number(segment: dict[str, Any], count: int) -> str:
+    """The segment's number where the survey has several segments, else ''."""
+    return str(segment.get("segment")) if count > 1 else ""
 
 
 def _horizontal(residuals: dict[str, Any] | None) -> float | None:
@@ -147,13 +162,17 @@ def _accuracy_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
     _, rms_h, bound_h, rms_v, bound_v, seg = max(rows, key=lambda r: (not r[0], r[1] / r[2]))
     passed = all(r[0] for r in rows)
     where = _segment_words(seg, len(segments))
+    segment = _segment_number(seg, len(segments))
+    figures = {"segment": segment, "rms_h": f"{rms_h:.2f}", "bound_h": f"{bound_h:.2f}"}
     if passed:
+        key = "accuracy.within"
         message = (
             f"The survey is as accurate as its flight log states{where}: the cameras and "
             f"their logged positions differ by {rms_h:.2f} m (horizontal RMS), within the "
             f"{bound_h:.2f} m the stated accuracy allows."
         )
     elif rms_h > bound_h:
+        key = "accuracy.horizontal"
         message = (
             f"The survey is less accurate than its flight log states{where}: the cameras and "
             f"their logged positions differ by {rms_h:.2f} m (horizontal RMS) where the "
@@ -161,6 +180,8 @@ def _accuracy_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
             "some logged positions are wrong; the DSM may be off by that much."
         )
     elif rms_v is not None and rms_v > bound_v:
+        key = "accuracy.vertical"
+        figures |= {"rms_v": f"{rms_v:.2f}", "bound_v": f"{bound_v:.2f}"}
         message = (
             f"The survey is less accurate than its flight log states{where}: the cameras' "
             f"heights and their logged ones differ by {rms_v:.2f} m (vertical RMS) where the "
@@ -171,6 +192,8 @@ def _accuracy_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
     else:
         # The georeference checks only the positions that state an accuracy; the fit's
         # figures here are over all its positions, and may stay within the bounds.
+        key = "accuracy.stated"
+        figures |= {"factor": f"{bounds.stated_accuracy_factor:g}"}
         message = (
             f"The survey is less accurate than its flight log states{where}: the logged "
             "positions that state an accuracy are further from the reconstruction than "
@@ -178,7 +201,7 @@ def _accuracy_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
             f"positions {rms_h:.2f} m horizontal RMS, allowed {bound_h:.2f} m). The "
             "reconstruction is distorted or some logged positions are wrong."
         )
-    return _check("georeference_accuracy", rms_h, bound_h, passed, message)
+    return _check("georeference_accuracy", rms_h, bound_h, passed, message, (key, figures))
 
 
 def _residual_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> dict[str, Any] | None:
@@ -198,6 +221,8 @@ def _residual_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
     bound = bounds.max_standalone_residual_m
     passed = rms_h <= bound
     where = _segment_words(seg, len(segments))
+    segment = _segment_number(seg, len(segments))
+    figures = {"segment": segment, "rms_h": f"{rms_h:.2f}", "bound": f"{bound:.1f}"}
     if passed:
         message = (
             f"The placed cameras agree with the logged GPS positions to {rms_h:.2f} m "
@@ -210,7 +235,8 @@ def _residual_check(segments: list[dict[str, Any]], bounds: QualityBounds) -> di
             f"the {bound:.1f} m allowed for stand-alone GPS (whose drift within a flight is "
             "about 1 m)."
         )
-    return _check("georeference_residual", rms_h, bound, passed, message)
+    key = "residual.within" if passed else "residual.over"
+    return _check("georeference_residual", rms_h, bound, passed, message, (key, figures))
 
 
 def _overlap_check(dsm: dict[str, Any], bounds: QualityBounds) -> dict[str, Any] | None:
@@ -230,7 +256,9 @@ def _overlap_check(dsm: dict[str, Any], bounds: QualityBounds) -> dict[str, Any]
             f"heights, below the {bound:.0%} needed: the rest of the DSM there is filled "
             "in or missing, and changes found there are uncertain."
         )
-    return _check("overlap_coverage", coverage, bound, passed, message)
+    figures = {"coverage": f"{coverage:.0%}", "bound": f"{bound:.0%}"}
+    key = "overlap.enough" if passed else "overlap.short"
+    return _check("overlap_coverage", coverage, bound, passed, message, (key, figures))
 
 
 def _segments_check(geo: dict[str, Any], segments: list[dict[str, Any]]) -> dict[str, Any]:
@@ -250,7 +278,10 @@ def _segments_check(geo: dict[str, Any], segments: list[dict[str, Any]]) -> dict
             f"the ground and {'was' if len(dropped) == 1 else 'were'} left out: the DSM "
             f"shows only what the other {kept} covered."
         )
-    return _check("segments_dropped", float(len(dropped)), None, passed, message)
+    key = "segments.dropped" if dropped else "segments.one" if total == 1 else "segments.all"
+    figures = {"dropped": str(len(dropped)), "total": str(total), "kept": str(kept)}
+    text = (key, figures)
+    return _check("segments_dropped", float(len(dropped)), None, passed, message, text)
 
 
 def _photo_check(
@@ -274,7 +305,10 @@ def _photo_check(
             f"of the georeference, more than the {bound:.0%} allowed: the GPS of the "
             "remaining photos is suspect too (bad reception or a wrong log)."
         )
-    return _check("photo_outliers", share, bound, passed, message)
+    counts = {"outliers": str(outliers), "photos": str(len(photos))}
+    shares = {"share": f"{share:.0%}", "bound": f"{bound:.0%}"}
+    text = ("photos.within" if passed else "photos.over", counts | shares)
+    return _check("photo_outliers", share, bound, passed, message, text)
 
 
 def _shape_check(
@@ -306,7 +340,17 @@ def _shape_check(
             "features far from the centre may sit that far from their true place (RTK "
             "positions or ground control points would fix it)."
         )
-    return _check("georeference_shape", error, bound, passed, message)
+    text = (
+        "shape.within" if passed else "shape.over",
+        {
+            "scale": f"{100 * shape['scale']:.2f}",
+            "rotation": f"{shape['rotation_deg']:.2f}",
+            "error_cm": f"{100 * error:.1f}",
+            "cells": f"{bounds.max_shape_error_cells:g}",
+            "bound_cm": f"{100 * bound:.1f}",
+        },
+    )
+    return _check("georeference_shape", error, bound, passed, message, text)
 
 
 # How each source of the offset is told in a message.
@@ -337,13 +381,16 @@ def _time_offset_check(offset: dict[str, Any] | None) -> dict[str, Any] | None:
         if refined and source != "log_start":
             how += f", {refined}"
         message = f"The flight log was matched to the video in time by {how}."
+        shown_refinement = str(offset.get("method")) if refined and source != "log_start" else ""
+        text = ("timeOffset.matched", {"source": str(source), "refined": shown_refinement})
     else:
         message = (
             f"The time offset between the video and its flight log is uncertain: {reason}. "
             "Positions may have been matched to the wrong part of the flight, which places "
             "the DSM metres off while its residuals look fine; give the offset if you know it."
         )
-    return _check("time_offset", value, None, reason is None, message)
+        text = ("timeOffset.uncertain", {"reason": str(reason)})
+    return _check("time_offset", value, None, reason is None, message, text)
 
 
 def _count(n: int, noun: str) -> str:

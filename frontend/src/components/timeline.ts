@@ -52,7 +52,7 @@ export function renderTimeline(surveys: Survey[], timeZone: string): string {
           <button type="button" data-delete-survey="${s.id}">${t("survey.delete", { name: escapeHtml(s.name) })}</button>
         </span>
         ${surveyQualityHtml(s.quality)}
-        ${surveyWarningsHtml(s.warnings)}
+        ${surveyWarningsHtml(s.warnings, s.quality)}
       </li>`,
     )
     .join("");

@@ -141,6 +141,14 @@ export function serverWords(key: string, server: string): string {
   return message === undefined ? server : form(message, undefined);
 }
 
+/** A message the server words from a catalogue key and its figures (a quality check's
+ * `text`), in the page's language: null where the page speaks the server's language (its
+ * own words are the same) or the catalogue lacks the key. */
+export function serverMessage(key: string, params: Params): string | null {
+  if (speaksServerLanguage() || !Object.hasOwn(catalogue.messages, key)) return null;
+  return t(key as MessageKey, params);
+}
+
 /** Free text the server wrote (a job's failure, a quality check's message) where the
  * page speaks another language: marked as the server's own words, in its language. */
 export function serverText(text: string): string {
