@@ -17,7 +17,6 @@ from worker.pipeline.change_regions import (
 from worker.pipeline.difference import GAIN, LOSS
 from worker.pipeline.error_model import (
     LOD_Z,
-    ErrorModelOptions,
     _fill_and_make_monotone,
     fit_error_model,
     terrain_attributes,
@@ -60,28 +59,6 @@ def test_recovers_a_known_sigma_of_slope_within_10_percent():
     assert all(0.9 <= r <= 1.1 for r in ratios), ratios
     # The errors' short correlation range: a 2-pixel gaussian is about 4 pixels wide.
     assert PIXEL <= model.correlation_length_m <= 8 * PIXEL
-
-
-def test_block_medians_keep_change_on_a_few_steep_blocks_out_of_their_bins_sigma():
-    """A small site whose steep ground is mostly what moved: change of 2-3 sigmas (below
-    the 4-sigma exclusion) on a third of the steepest bins inflates their pooled NMAD; the
-    median of 5 m blocks' NMADs (`block_size_m`) stays at the error's own sigma."""
-    rng = np.random.default_rng(8)
-    surface = _valley()
-    slope, curvature = terrain_attributes(surface, PIXEL)
-    dh = (0.05 * rng.normal(size=surface.shape)).astype(np.float32)
-    steep = slope > 30
-    moved = steep & (np.arange(surface.shape[0])[:, None] < surface.shape[0] // 3)
-    dh[moved] += 0.12  # 2.4 sigmas
-    pooled = fit_error_model(dh, slope, curvature, PIXEL)
-    blocks = fit_error_model(dh, slope, curvature, PIXEL, ErrorModelOptions(block_size_m=5.0))
-    stable_steep = steep & ~moved
-    pooled_sigma = float(np.median(pooled.sigma(slope, curvature)[stable_steep]))
-    block_sigma = float(np.median(blocks.sigma(slope, curvature)[stable_steep]))
-    assert pooled_sigma > 0.06  # learnt from the change
-    assert block_sigma == pytest.approx(0.05, rel=0.1)
-    flat = slope < 10  # where nothing moved both read the error
-    assert float(np.median(blocks.sigma(slope, curvature)[flat])) == pytest.approx(0.05, rel=0.1)
 
 
 def test_the_sigma_table_never_falls_with_slope_or_curvature():

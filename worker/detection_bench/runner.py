@@ -81,7 +81,6 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 # worse than is the LoD method with one NMAD for the whole raster.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-uniform": ("threshold", {"difference": {"error_model": "uniform"}}),
-    "threshold-blocks": ("threshold", {"difference": {"error_model": "heteroscedastic-blocks"}}),
 }
 
 

@@ -36,10 +36,7 @@ from worker.pipeline.raster_io import MASK_NODATA, read_elevation, write_geotiff
 from worker.pipeline.stages import StageResult
 
 NO_CHANGE, LOSS, GAIN = 0, 1, 2
-# heteroscedastic-blocks: the same model, each bin's sigma the median over 5 m blocks
-# (error_model.ErrorModelOptions.block_size_m); measured beside the default, not it.
-ERROR_MODELS = ("heteroscedastic", "uniform", "heteroscedastic-blocks")
-BLOCK_SIZE_M = 5.0
+ERROR_MODELS = ("heteroscedastic", "uniform")
 LOD_FILE = "lod.tif"
 ERROR_MODEL_FILE = "error_model.json"
 __all__ = ["GAIN", "LOD_Z", "LOSS", "NO_CHANGE", "DifferenceOptions", "difference"]
@@ -183,9 +180,7 @@ def _error_model(
     options: DifferenceOptions,
 ) -> ErrorModel:
     model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
-    if options.error_model == "heteroscedastic-blocks":
-        model_options.block_size_m = BLOCK_SIZE_M
-    if options.error_model in ("heteroscedastic", "heteroscedastic-blocks"):
+    if options.error_model == "heteroscedastic":
         try:
             return fit_error_model(dh, slope, curvature, pixel_size, model_options)
         except ValueError as exc:

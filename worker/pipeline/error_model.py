@@ -53,11 +53,6 @@ class ErrorModelOptions:
     iterations: int = 3
     variogram_window_px: int = 768  # the variogram is computed on a window this large
     attribute_scale_m: float = 0.1  # slope and curvature are measured at this scale
-    # When set, a bin's sigma is the median of the NMADs of its pixels in each square
-    # block this wide (at least `BLOCK_MIN_PX` pixels) rather than the NMAD of them all:
-    # change that sits in a few places (a small site whose steep ground is the mounds that
-    # moved) then leaves the steep bins' sigma alone, where the pooled NMAD learns from it.
-    block_size_m: float | None = None
     seed: int = 0
 
 
@@ -270,9 +265,6 @@ def _fit_heteroscedasticity(
     i_s, i_c = bin_index(s, slope_edges), bin_index(c, curv_edges)
     cell = np.where((i_s >= 0) & (i_c >= 0), i_c * n_s + i_s, -1)
     counts, nmads = binned_nmad(values - median, cell, n_c * n_s)
-    if options.block_size_m:
-        nmads = _block_median_nmad(values - median, cell, n_c * n_s, index, dh.shape,
-                                   pixel_size, options.block_size_m, nmads)  # fmt: skip
     cnt = counts.reshape(n_c, n_s)
     sig = np.where(cnt >= options.min_bin_count, nmads.reshape(n_c, n_s), np.nan)
     # Keep only slope bins that hold data at all; empty ones would be pure extrapolation.
@@ -292,37 +284,6 @@ def _fit_heteroscedasticity(
         variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
         counts=cnt.tolist(),
     )
-
-
-BLOCK_MIN_PX = 16  # a block narrower than this holds too few pixels for its own NMAD
-BLOCK_MIN_SAMPLES = 30  # pixels of a bin in a block for that block's NMAD to count
-BLOCK_MIN_BLOCKS = 3  # blocks a bin needs for their median; else its pooled NMAD
-
-
-def _block_median_nmad(
-    values: np.ndarray,
-    cell: np.ndarray,
-    n_cells: int,
-    index: np.ndarray,
-    shape: tuple[int, ...],
-    pixel_size: float,
-    block_size_m: float,
-    pooled: np.ndarray,
-) -> np.ndarray:
-    """Per bin, the median over blocks of the NMAD of the bin's pixels in each block."""
-    block_px = max(round(block_size_m / pixel_size), BLOCK_MIN_PX)
-    rows, cols = np.unravel_index(index, shape)
-    blocks_across = -(-shape[1] // block_px)
-    block = (rows // block_px) * blocks_across + cols // block_px
-    n_blocks = int(block.max()) + 1 if block.size else 1
-    key = np.where(cell >= 0, cell * n_blocks + block, -1)
-    counts, nmads = binned_nmad(values, key, n_cells * n_blocks)
-    counts, nmads = counts.reshape(n_cells, n_blocks), nmads.reshape(n_cells, n_blocks)
-    usable = counts >= BLOCK_MIN_SAMPLES
-    out = pooled.copy()
-    for i in np.flatnonzero(usable.sum(axis=1) >= BLOCK_MIN_BLOCKS):
-        out[i] = float(np.median(nmads[i][usable[i]]))
-    return out
 
 
 def _fill_and_make_monotone(sig: np.ndarray, cnt: np.ndarray, fallback: float) -> np.ndarray:
