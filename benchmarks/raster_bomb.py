@@ -25,7 +25,7 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.raster_bombs import write_bomb  # noqa: E402
+from tests.raster_bombs import upload_bomb, write_bomb  # noqa: E402
 
 BOMBS = {
     "200 Mpx tiled (14143²)": dict(width=14143, height=14143),
@@ -34,15 +34,6 @@ BOMBS = {
 }
 
 LIMITS = ("PIXELS", "DIMENSION", "BLOCK_BYTES", "COMPRESSION_RATIO")
-
-
-def memory_kib(pid: int) -> dict[str, int]:
-    fields = {}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        name, _, value = line.partition(":")
-        if name in ("VmRSS", "VmHWM"):
-            fields[name] = int(value.split()[0])
-    return fields
 
 
 def free_port() -> int:
@@ -96,16 +87,9 @@ def main() -> None:
                 for name, shape in bombs.items():
                     path = write_bomb(Path(folder) / "bomb.tif", **shape)  # type: ignore[arg-type]
                     data = path.read_bytes()
-                    before = memory_kib(api.pid)
-                    started = time.perf_counter()
-                    answer = client.post(
-                        f"/api/v1/sites/{site}/surveys",
-                        params={"captured_at": "2026-06-01T10:00:00Z", "filename": "bomb.tif"},
-                        content=data,
-                        headers={"Content-Type": "image/tiff"},
-                    )
-                    seconds = time.perf_counter() - started
-                    after = memory_kib(api.pid)
+                    upload = upload_bomb(client, f"/api/v1/sites/{site}/surveys", data, api.pid)
+                    answer, seconds = upload.response, upload.seconds
+                    before, after = upload.before_kib, upload.after_kib
                     result = {
                         "bomb": name,
                         "file_bytes": len(data),

@@ -6,8 +6,12 @@ a real bomb is, and the file is a valid GeoTIFF in UTM zone 32N that GDAL opens.
 """
 
 import struct
+import time
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
+
+import httpx
 
 FLOAT32 = 3
 DEFLATE = 8
@@ -85,3 +89,45 @@ def write_bomb(
         for _ in range(blocks):
             out.write(zeros)
     return path
+
+
+def memory_kib(pid: int) -> dict[str, int]:
+    """A process's resident set now (VmRSS) and its peak (VmHWM), KiB, from /proc."""
+    fields = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        name, _, value = line.partition(":")
+        if name in ("VmRSS", "VmHWM"):
+            fields[name] = int(value.split()[0])
+    return fields
+
+
+@dataclass
+class BombAnswer:
+    response: httpx.Response
+    seconds: float
+    before_kib: dict[str, int]
+    after_kib: dict[str, int]
+
+    @property
+    def peak_growth_mib(self) -> float:
+        """How far the process's peak rose above its resident set before the upload."""
+        return (self.after_kib["VmHWM"] - self.before_kib["VmRSS"]) / 1024
+
+
+def upload_bomb(
+    client: httpx.Client, surveys_url: str, data: bytes, pid: int, reset_peak: bool = False
+) -> BombAnswer:
+    """Upload `data` as a DSM survey to a running API process `pid`, timing the answer and
+    reading the process's memory around it; `reset_peak` first resets its peak (VmHWM,
+    `/proc/PID/clear_refs`) so that the peak read after is the upload's own."""
+    if reset_peak:
+        Path(f"/proc/{pid}/clear_refs").write_text("5")
+    before = memory_kib(pid)
+    started = time.perf_counter()
+    response = client.post(
+        surveys_url,
+        params={"captured_at": "2026-06-01T10:00:00Z", "filename": "bomb.tif"},
+        content=data,
+        headers={"Content-Type": "image/tiff"},
+    )
+    return BombAnswer(response, time.perf_counter() - started, before, memory_kib(pid))
