@@ -84,10 +84,10 @@ def test_a_reconstruction_far_from_its_truth_is_refused_with_its_figures():
 
 @pytest.fixture(scope="module")
 def short_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """paper-mounds, 2 steps, 6 s of video at 15 fps each, reconstructed."""
+    """paper-mounds, 2 steps, 4 s of video at 15 fps each, reconstructed."""
     out = tmp_path_factory.mktemp("reconstructed")
     simulation = dataclasses.replace(
-        survey_simulation(seed=3, steps=2), video_seconds=6.0, fps=15.0, workers=1
+        survey_simulation(seed=3, steps=2), video_seconds=4.0, fps=15.0, workers=1
     )
     return reconstructed_dataset(out, "paper-mounds", simulation, log=lambda _: None)
 
@@ -106,7 +106,7 @@ def test_reconstructed_dataset_pairs_reconstructed_dsms_with_the_simulators_mask
     assert pair.pixel_size_m == pytest.approx(0.02)
     for dsm, truth in ((pair.pre, pair.truth_pre), (pair.post, pair.truth_post)):
         both = np.isfinite(dsm) & np.isfinite(truth)
-        assert both.mean() > 0.15  # a 6 s pass covers a strip of the 36 m field
+        assert both.mean() > 0.15  # a 4 s pass covers a strip of the 36 m field
         error = (dsm - truth)[both]
         # Reconstruction error remains (it is the point), at the size of a few pixels.
         nmad = 1.4826 * np.median(np.abs(error - np.median(error)))
@@ -126,7 +126,7 @@ def test_reconstructed_dataset_is_not_redone(short_dataset: Path):
     registered = sorted(short_dataset.parent.glob("reconstruction/*/registered.tif"))
     stamps = [p.stat().st_mtime_ns for p in registered]
     simulation = dataclasses.replace(
-        survey_simulation(seed=3, steps=2), video_seconds=6.0, fps=15.0, workers=1
+        survey_simulation(seed=3, steps=2), video_seconds=4.0, fps=15.0, workers=1
     )
     again = reconstructed_dataset(short_dataset.parent, "paper-mounds", simulation)
     assert again == short_dataset
