@@ -30,6 +30,13 @@ def upload_dsm(
     return response.json()
 
 
+def request_comparison(client, auth: dict, site: int, pre: int, post: int, method: str, **extra):
+    """POST a comparison of surveys `pre` and `post` by `method` (`extra`: more of the body,
+    e.g. `parameters`, `run_again`); the response."""
+    body = {"pre_survey_id": pre, "post_survey_id": post, "method": method, **extra}
+    return client.post(f"/api/v1/sites/{site}/comparisons", json=body, headers=auth)
+
+
 def run_job_inline(job_id: int, first_stage: str = "align") -> None:
     """Run every stage of a job in this process, exactly as a worker would."""
     stage: str | None = first_stage

@@ -8,7 +8,7 @@ import rasterio
 from fastapi.testclient import TestClient
 from rio_cogeo.cogeo import cog_validate
 
-from tests.api_helpers import run_job_inline, upload_dsm
+from tests.api_helpers import request_comparison, run_job_inline, upload_dsm
 from tests.cnn.conftest import mound_pair
 
 # Co-registration on 50 k pixels: the same result on these small pairs, quicker.
@@ -40,15 +40,8 @@ def test_cnn_comparison_stores_probability_cells_and_model_version(
     site = client.post("/api/v1/sites", json={"name": "mounds"}, headers=auth).json()["id"]
     pre = upload_dsm(client, auth, site, mound_files[0], "2026-06-01T10:00:00Z")
     post = upload_dsm(client, auth, site, mound_files[1], "2026-07-01T10:00:00Z")
-    created = client.post(
-        f"/api/v1/sites/{site}/comparisons",
-        json={
-            "pre_survey_id": pre["id"],
-            "post_survey_id": post["id"],
-            "method": "cnn",
-            "parameters": QUICK,
-        },
-        headers=auth,
+    created = request_comparison(
+        client, auth, site, pre["id"], post["id"], "cnn", parameters=QUICK
     ).json()
     assert created["comparison"]["method"] == "cnn"
     # The model is known from the start: the registry's default, kept in the parameters.

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from backend.config import Settings
-from tests.api_helpers import upload_dsm
+from tests.api_helpers import request_comparison, upload_dsm
 from tests.cnn.conftest import mound_pair, write_separable_dataset
 from tests.integration.conftest import SlidewatchProcess, api_client, wait_for_job
 
@@ -30,16 +30,7 @@ def test_cnn_finds_the_planted_slide_in_a_worker(
     pre_path, post_path = mound_pair(True, 3).write(tmp_path / "slide")
     pre = upload_dsm(client, auth, site, pre_path, "2026-06-01T10:00:00Z")
     post = upload_dsm(client, auth, site, post_path, "2026-07-01T10:00:00Z")
-    created = client.post(
-        f"/api/v1/sites/{site}/comparisons",
-        json={
-            "pre_survey_id": pre["id"],
-            "post_survey_id": post["id"],
-            "method": "cnn",
-            "parameters": QUICK,
-        },
-        headers=auth,
-    )
+    created = request_comparison(client, auth, site, pre["id"], post["id"], "cnn", parameters=QUICK)
     assert created.status_code == 202, created.text
     assert created.json()["comparison"]["method"] == "cnn"
     job = wait_for_job(

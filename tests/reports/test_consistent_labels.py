@@ -9,7 +9,7 @@ import pyogrio
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from tests.api_helpers import run_job_inline
+from tests.api_helpers import request_comparison, run_job_inline
 from tests.monitoring_helpers import finished_comparison
 from tests.reports.test_reports import _build, pdf_text
 from worker.simulator.dsm_pair import DsmPairPaths
@@ -39,15 +39,8 @@ def test_a_detection_has_one_label_everywhere_and_times_are_the_sites(
         client.patch(f"/api/v1/sites/{site}", json={"timezone": "Asia/Tokyo"}, headers=auth)
     ).status_code == 200
     # A second run of the same pair: its detections have new database ids, labels from 1.
-    again = client.post(
-        f"/api/v1/sites/{site}/comparisons",
-        json={
-            "pre_survey_id": ids["pre"],
-            "post_survey_id": ids["post"],
-            "method": "threshold",
-            "run_again": True,
-        },
-        headers=auth,
+    again = request_comparison(
+        client, auth, site, ids["pre"], ids["post"], "threshold", run_again=True
     ).json()
     run_job_inline(again["job"]["id"])
     comparison = again["comparison"]["id"]
