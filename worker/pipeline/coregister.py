@@ -51,6 +51,7 @@ import rasterio
 from rasterio.transform import Affine
 from scipy import ndimage
 
+from worker.pipeline.binned import nmad
 from worker.pipeline.coarse_shift import coarse_shift
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import is_metric_projected
@@ -243,8 +244,8 @@ def coregister(
         tilt_north_m_per_km=float(-plane.c * 1000) if options.tilt else None,
         tilt_pivot_east_m=float(transform.c + transform.a * pre.shape[1] / 2),
         tilt_pivot_north_m=float(transform.f + transform.e * pre.shape[0] / 2),
-        nmad_before_m=_nmad(raw),
-        nmad_after_m=_nmad(after),
+        nmad_before_m=nmad(raw),
+        nmad_after_m=nmad(after),
         median_before_m=float(np.median(raw)),
         median_after_m=float(np.median(after)),
         stable_fraction=float(np.count_nonzero(stable) / max(np.count_nonzero(valid), 1)),
@@ -296,7 +297,7 @@ def _refine_rotation(
 
     def spread(moved: np.ndarray, fitted: _Plane) -> float:
         dh = (moved - pre - fitted.evaluate(dx, dy))[stable]
-        return _nmad(dh[np.isfinite(dh)])
+        return nmad(dh[np.isfinite(dh)])
 
     best = (shift, 0.0, shifted, plane)
     best_spread = spread(shifted, plane)
@@ -309,7 +310,7 @@ def _refine_rotation(
         for _ in range(2):  # second pass without the residual outliers of the first
             coef = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
             residual = np.where(ok, values - design @ coef, np.inf)
-            keep = ok & (np.abs(residual) <= 3.0 * max(_nmad(residual[ok]), 1e-6))
+            keep = ok & (np.abs(residual) <= 3.0 * max(nmad(residual[ok]), 1e-6))
         # Moving post on by a small motion m changes dh by -grad . m: the dh left is
         # grad . m + plane, so the fitted motion is what is still to apply.
         current_shift = (current_shift[0] + coef[0], current_shift[1] + coef[1])
@@ -356,7 +357,7 @@ def _initial_shift(
     moved = _apply_shift(post, transform, crs, shift)
 
     def spread(dh: np.ndarray) -> float:
-        return _nmad(dh[np.isfinite(dh)])
+        return nmad(dh[np.isfinite(dh)])
 
     return (shift, moved) if spread(moved - pre) < spread(post - pre) else none
 
@@ -472,7 +473,7 @@ def _fit_plane(
     for _ in range(2):  # second pass without the residual outliers of the first
         coef = np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
         residual = values - design @ coef
-        keep = np.abs(residual - np.median(residual)) <= 3.0 * max(_nmad(residual), 1e-6)
+        keep = np.abs(residual - np.median(residual)) <= 3.0 * max(nmad(residual), 1e-6)
     return _Plane(*(float(c) for c in coef))
 
 
@@ -480,7 +481,7 @@ def _stable_terrain(
     dh: np.ndarray, valid: np.ndarray, stable: np.ndarray, options: CoregisterOptions
 ) -> np.ndarray:
     values = dh[stable & valid]
-    median, spread = float(np.median(values)), _nmad(values)
+    median, spread = float(np.median(values)), nmad(values)
     with np.errstate(invalid="ignore"):
         unstable = (np.abs(dh - median) > options.outlier_nmad_factor * spread) | (
             np.abs(dh) > options.max_abs_change_m
@@ -491,10 +492,3 @@ def _stable_terrain(
     if options.unstable_buffer_px > 0:
         unstable = ndimage.binary_dilation(unstable, iterations=options.unstable_buffer_px)
     return valid & ~unstable
-
-
-def _nmad(values: np.ndarray) -> float:
-    """Normalised median absolute deviation (1.4826 * MAD), as xdem defines it."""
-    if values.size == 0:
-        return float("nan")
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
