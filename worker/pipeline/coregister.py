@@ -2,11 +2,10 @@
 
 Model: corrected_post(x, y) = post(x - east, y - north) - plane(x, y), where (east, north)
 is the horizontal correction found by Nuth & Kääb (2011) (nuth_kaab.py: xdem's NuthKaab
-iteration, vectorised) and
-plane = a + b (x - xc) + c (y - yc) the vertical correction: a constant offset, plus a tilt
-when `tilt` is on. The reported shift (shift_east_m, shift_north_m, shift_up_m) is the
-correction applied to post: the opposite of post's displacement relative to pre;
-shift_up_m is the vertical correction at the grid centre.
+iteration, vectorised) and plane = a + b (x - xc) + c (y - yc) the vertical correction: a
+constant offset, plus a tilt when `tilt` is on. The reported shift (shift_east_m,
+shift_north_m, shift_up_m) is the correction applied to post: the opposite of post's
+displacement relative to pre; shift_up_m is the vertical correction at the grid centre.
 
 Stable terrain is refined iteratively so a landslide does not bias the fit: fit on the
 current stable mask, compute dh = corrected_post - pre, drop pixels with
