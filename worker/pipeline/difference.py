@@ -28,6 +28,7 @@ from worker.pipeline.error_model import (
     ErrorModel,
     ErrorModelOptions,
     fit_error_model,
+    fit_error_model_and_sigma,
     terrain_attributes,
 )
 from worker.pipeline.errors import InputError
@@ -116,7 +117,7 @@ def difference(
     slope, curvature = terrain_attributes(mean_surface, pixel_size, options.attribute_scale_m)
     del mean_surface
     progress(0.3)
-    model = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
+    model, sigma = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
     progress(0.7)
     if options.lod_m is not None:
         if not options.lod_m > 0:
@@ -124,11 +125,10 @@ def difference(
         lod = np.where(valid, np.float32(options.lod_m), np.nan).astype(np.float32)
         kind = "fixed"
     else:
-        lod = (LOD_Z * model.sigma(slope, curvature)).astype(np.float32)
-        lod = np.maximum(lod, np.float32(options.min_lod_m))
+        lod = np.maximum(sigma * np.float32(LOD_Z), np.float32(options.min_lod_m))
         lod[~valid] = np.nan
         kind = options.error_model
-    del slope, curvature
+    del slope, curvature, sigma
     centred = dh - np.float32(model.median_dh_m if options.lod_m is None else 0.0)
     significance = np.full(dh.shape, MASK_NODATA, dtype=np.uint8)
     significance[valid] = NO_CHANGE
@@ -178,11 +178,12 @@ def _error_model(
     median: float,
     nmad: float,
     options: DifferenceOptions,
-) -> ErrorModel:
+) -> tuple[ErrorModel, np.ndarray]:
+    """The error model and its sigma_dh per pixel (float32)."""
     model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
     if options.error_model == "heteroscedastic":
         try:
-            return fit_error_model(dh, slope, curvature, pixel_size, model_options)
+            return fit_error_model_and_sigma(dh, slope, curvature, pixel_size, model_options)
         except ValueError as exc:
             raise InputError(f"cannot learn the error of the difference: {exc}") from None
     # The uniform baseline: one sigma everywhere; the variogram still gives intervals.
@@ -196,7 +197,7 @@ def _error_model(
     model.median_dh_m = median
     model.nmad_m = nmad
     model.stable_pixels = int(np.count_nonzero(stable))
-    return model
+    return model, model.sigma(slope, curvature)
 
 
 def _stable_pixels(
