@@ -21,7 +21,6 @@ import numpy as np
 from scipy import ndimage
 
 from worker.pipeline.change_regions import (
-    SURFACE_CHANGE,
     ChangeRasters,
     Region,
     RegionOptions,
@@ -32,6 +31,7 @@ from worker.pipeline.change_regions import (
     min_area_m2,
     region_detection,
     significant_regions,
+    split_surface_changes,
 )
 from worker.pipeline.detection_record import write_detections
 from worker.pipeline.geo import crs_to_string
@@ -77,8 +77,7 @@ def score_candidates(
     rasters = load_change_rasters(dh_path, significance_path, pre_path, post_path)
     regions = candidate_regions(rasters, options)
     progress(0.6)
-    landslides = [r for r in regions if r.kind != SURFACE_CHANGE]
-    surface = [r for r in regions if r.kind == SURFACE_CHANGE]
+    landslides, surface = split_surface_changes(regions, options)
     probabilities = scorer.probability([r.traits for r in landslides])
     detections = [
         region_detection(r, rasters.crs, float(p), method, scorer.reference)

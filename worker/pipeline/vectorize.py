@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 from worker.pipeline.change_regions import (
-    SURFACE_CHANGE,
     Region,
     RegionOptions,
     describe_region,
@@ -33,6 +32,7 @@ from worker.pipeline.change_regions import (
     min_area_m2,
     region_detection,
     significant_regions,
+    split_surface_changes,
 )
 from worker.pipeline.detection_record import write_detections
 from worker.pipeline.errors import InputError
@@ -85,11 +85,11 @@ def vectorize(
     smallest = min_area_m2(rasters, options)
     labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
     progress(0.4)
-    landslides: list[Region] = []
-    surface: list[Region] = []
-    for label, window in zip(keep, windows, strict=True):
-        region = describe_region(rasters, labels, label, window, options)
-        (surface if region.kind == SURFACE_CHANGE else landslides).append(region)
+    regions = [
+        describe_region(rasters, labels, label, window, options)
+        for label, window in zip(keep, windows, strict=True)
+    ]
+    landslides, surface = split_surface_changes(regions, options)
     progress(0.9)
     detections = [region_detection(r, rasters.crs, _score(r, smallest), method) for r in landslides]
     collection = write_detections(out_geojson, detections, rasters.crs)

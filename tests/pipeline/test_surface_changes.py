@@ -1,0 +1,158 @@
+"""Trees that grow or are felled are surface change; a slide with its trees is a landslide.
+
+A tree-sized region has only a handful of bare-ground pixels around it, and the ground at
+a crown's edge reads worse than the error model says (its slope and curvature come from
+the mean surface, not from the crown beside it). Counting that ground as moved once it
+passes its LoD made growing trees landslides; it counts beyond 1.5 times the LoD. Crowns
+a slide carried off are cut from its ground by the LoD: lost within 5 m of it, they join it.
+"""
+
+import numpy as np
+from rasterio.transform import from_origin
+from scipy import ndimage
+
+from worker.pipeline.change_regions import (
+    LANDSLIDE,
+    SURFACE_CHANGE,
+    ChangeRasters,
+    Region,
+    RegionOptions,
+    describe_region,
+    label_regions,
+    significant_regions,
+    split_surface_changes,
+)
+from worker.pipeline.difference import GAIN, LOSS
+from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
+
+PIXEL = 0.5
+SHAPE = (260, 260)
+SIGMA = 0.05  # the error model's sigma everywhere
+SLIDE = (slice(150, 230), slice(150, 230))  # 40 x 40 m, densely forested
+
+
+def _crowns(rng: np.random.Generator, centres: list[tuple[int, int]], grow_m: float) -> np.ndarray:
+    """Crowns 8-14 m tall, 2.5-3.5 m in radius, their lower half a trunk's height above
+    the ground (as the pair generators draw them); `grow_m` is a season's growth."""
+    rows, cols = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
+    height = np.zeros(SHAPE)
+    for r, c in centres:
+        top = rng.uniform(8.0, 14.0) + grow_m
+        radius_px = rng.uniform(2.5, 3.5) / PIXEL
+        d = np.hypot(rows - r, cols - c) / radius_px
+        height = np.maximum(height, np.where(d <= 1.0, top * (1.0 - 0.5 * d * d), 0.0))
+    return height
+
+
+def _rasters(pre: np.ndarray, post: np.ndarray) -> ChangeRasters:
+    dh = (post - pre).astype(np.float32)
+    lod = np.full(SHAPE, LOD_Z * SIGMA, np.float32)
+    significance = np.zeros(SHAPE, np.uint8)
+    significance[dh < -lod] = LOSS
+    significance[dh > lod] = GAIN
+    model = ErrorModel(
+        pixel_size=PIXEL,
+        slope_centres_deg=[0.0],
+        curvature_centres=[0.0],
+        sigma_table=[[SIGMA]],
+        median_dh_m=0.0,
+        nmad_m=SIGMA,
+        stable_pixels=int(dh.size),
+        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
+    )
+    return ChangeRasters(
+        dh=dh,
+        lod=lod,
+        significance=significance,
+        transform=from_origin(500000, 4000000, PIXEL, PIXEL),
+        crs="EPSG:32654",
+        model=model,
+        pre=pre.astype(np.float32),
+        post=post.astype(np.float32),
+    )
+
+
+def _forest_pair(seed: int) -> tuple[ChangeRasters, list[tuple[int, int]]]:
+    rng = np.random.default_rng(seed)
+    # Scattered trees on still ground, dense ones on the slide.
+    scattered = [(int(r), int(c)) for r, c in rng.uniform(15, 135, size=(14, 2))]
+    dense = [(r, c) for r in range(156, 228, 9) for c in range(156, 228, 9)]
+    centres = scattered + dense
+    ground = 0.05 * np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]][1] * PIXEL
+    tree_seed = int(rng.integers(1 << 30))
+    pre_trees = _crowns(np.random.default_rng(tree_seed), centres, 0.0)
+    post_trees = _crowns(np.random.default_rng(tree_seed), centres, 0.6)
+    slide = np.zeros(SHAPE)
+    slide[SLIDE] = -1.2  # the ground and its trees drop together
+    # The ground's error; beside a crown it reads 1.6 times worse than the model's sigma.
+    near_crown = ndimage.binary_dilation(post_trees > 0.5, iterations=5) & (post_trees <= 0.5)
+    error = rng.normal(0.0, SIGMA, SHAPE) * np.where(near_crown, 1.6, 1.0)
+    rasters = _rasters(ground + pre_trees, ground + post_trees + slide + error)
+    return rasters, scattered
+
+
+def _kinds(rasters: ChangeRasters, options: RegionOptions) -> tuple[list[str], list[str]]:
+    """Kinds of the regions off the slide, and of those on it."""
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    off, on = [], []
+    for label, window in zip(keep, windows, strict=True):
+        region = describe_region(rasters, labels, label, window, options)
+        inside = labels == label
+        (on if inside[SLIDE].sum() > inside.sum() / 2 else off).append(region.kind)
+    return off, on
+
+
+def test_growing_trees_are_surface_change_and_a_forested_slide_is_a_landslide():
+    options = RegionOptions()
+    trees_called_landslides_at_the_lod = 0
+    for seed in range(6):
+        rasters, scattered = _forest_pair(seed)
+        off, on = _kinds(rasters, options)
+        assert len(off) >= len(scattered) // 2, f"seed {seed}: the growth was not even found"
+        assert off.count(SURFACE_CHANGE) == len(off), f"seed {seed}: {off}"
+        assert on == [LANDSLIDE], f"seed {seed}: {on}"
+        at_lod, on_at_lod = _kinds(rasters, RegionOptions(ground_motion_lod_ratio=1.0))
+        assert on_at_lod == [LANDSLIDE]
+        trees_called_landslides_at_the_lod += at_lod.count(LANDSLIDE)
+    # What the rule is for: at the LoD itself, the crowns' ground passes by chance.
+    assert trees_called_landslides_at_the_lod >= 3
+
+
+def test_trees_a_debris_flow_took_are_part_of_it_and_other_tree_change_is_not():
+    """Crowns the channel took are cut off from it by the LoD; lost within 5 m of it, they
+    join it. Trees that grew beside it, or were felled far off, stay surface change."""
+    rng = np.random.default_rng(11)
+    ground = 0.05 * np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]][1] * PIXEL
+    channel = (slice(40, 220), slice(120, 136))  # 90 m long, 8 m wide, scoured 1 m
+    taken = [(r, 108) for r in range(50, 215, 25)]  # 6 m off its left bank
+    grown = [(r, 148) for r in range(50, 215, 25)]  # 6 m off its right bank
+    far = [(r, 30) for r in range(40, 230, 30)]  # felled 42 m away
+    tree_seed = int(rng.integers(1 << 30))
+    pre_trees = _crowns(np.random.default_rng(tree_seed), grown + taken + far, 0.0)
+    post_trees = _crowns(np.random.default_rng(tree_seed), grown, 1.0)
+    post = ground + post_trees + rng.normal(0.0, SIGMA, SHAPE)
+    post[channel] -= 1.0
+    rasters = _rasters(ground + pre_trees, post)
+    options = RegionOptions()
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    regions = [
+        describe_region(rasters, labels, label, window, options)
+        for label, window in zip(keep, windows, strict=True)
+    ]
+    landslides, surface = split_surface_changes(regions, options)
+
+    def column(region: Region) -> float:
+        return (region.geometry.centroid.x - 500000) / PIXEL
+
+    left = [r for r in regions if 95 < column(r) < 118]
+    right = [r for r in regions if 138 < column(r) < 160]
+    assert len(left) == len(taken) and len(right) == len(grown), "one region per crown"
+    assert all(r.kind == SURFACE_CHANGE for r in left + right)  # each alone looks like trees
+    assert sorted(column(r) for r in landslides) == sorted(
+        column(r) for r in regions if 95 < column(r) < 138
+    )
+    assert len(landslides) == len(taken) + 1  # the channel and the crowns it took
+    assert len(surface) == len(grown) + len(far)
+    # Without the context only the channel is a landslide.
+    alone, _ = split_surface_changes(regions, RegionOptions(object_context_m=0.0))
+    assert len(alone) == 1
