@@ -28,8 +28,9 @@ _MIN_VALID_WEIGHT = 0.999
 
 def read_elevation(path: Path, window: Any = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Band 1 as float32 with NaN for nodata (and for NaN/inf values), plus the profile."""
-    # Deflate blocks are decoded on every core (GDAL's NUM_THREADS open option).
-    with rasterio.open(path, num_threads="all_cpus") as src:
+    # Compressed blocks are decoded on every core (GDAL_NUM_THREADS: a config option,
+    # which drivers without threads ignore, where an open option would be logged).
+    with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"), rasterio.open(path) as src:
         if src.mask_flag_enums[0] == (MaskFlags.nodata,):
             # The usual case, the nodata value is the mask: compared in place, with no
             # masked array (half the time on large rasters).
