@@ -200,3 +200,46 @@ def test_a_small_strong_change_is_kept_and_correlated_error_is_not():
         assert keep - keep_strict == {mound}, f"seed {seed}: added {keep - keep_strict}"
         assert mound not in keep_strict
         assert labels[201, 61] not in keep  # the spike: narrower than the errors resolve
+
+
+def test_sigma_is_the_bilinear_table_clamped_beyond_its_centres():
+    """The per-pixel lookup, worked in bands, equals scipy's linear interpolation of the
+    table over a raster of several bands, with NaN where an attribute is NaN."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from worker.pipeline.error_model import ErrorModel, VariogramModel
+
+    rng = np.random.default_rng(9)
+    slopes = [2.5, 7.5, 12.5, 22.5, 47.5]
+    curvatures = [0.2, 0.9, 3.0]
+    table = np.sort(rng.uniform(0.02, 0.5, size=(3, 5)), axis=1)
+    model = ErrorModel(
+        pixel_size=0.2,
+        slope_centres_deg=slopes,
+        curvature_centres=curvatures,
+        sigma_table=table.tolist(),
+        median_dh_m=0.0,
+        nmad_m=0.1,
+        stable_pixels=1,
+        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
+    )
+    shape = (640, 700)  # 448 000 pixels: the lookup's bands are 262 144
+    slope = rng.uniform(0.0, 70.0, shape).astype(np.float32)
+    curvature = rng.uniform(-4.0, 4.0, shape).astype(np.float32)  # |curvature| is used
+    slope[5, 7] = np.nan
+    curvature[600, 9] = np.nan
+    sigma = model.sigma(slope, curvature)
+    reference = RegularGridInterpolator((curvatures, slopes), table)(
+        np.stack(
+            [
+                np.clip(np.nan_to_num(np.abs(curvature)), curvatures[0], curvatures[-1]),
+                np.clip(np.nan_to_num(slope), slopes[0], slopes[-1]),
+            ],
+            axis=-1,
+        ).reshape(-1, 2)
+    ).reshape(shape)
+    assert sigma.dtype == np.float32
+    assert np.isnan(sigma[5, 7]) and np.isnan(sigma[600, 9])
+    finite = np.isfinite(slope) & np.isfinite(curvature)
+    assert np.count_nonzero(np.isnan(sigma)) == 2
+    np.testing.assert_allclose(sigma[finite], reference[finite], rtol=1e-6)
