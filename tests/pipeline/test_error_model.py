@@ -3,9 +3,9 @@ of the per-pixel LoD and of a polygon's 95 % intervals over seeded trials."""
 
 import numpy as np
 import pytest
-from rasterio.transform import from_origin
 from scipy import ndimage
 
+from tests.pipeline.change_rasters import change_rasters
 from worker.pipeline.change_regions import (
     ChangeRasters,
     RegionOptions,
@@ -14,7 +14,6 @@ from worker.pipeline.change_regions import (
     min_area_m2,
     significant_regions,
 )
-from worker.pipeline.difference import GAIN, LOSS
 from worker.pipeline.error_model import (
     LOD_Z,
     _fill_and_make_monotone,
@@ -47,7 +46,7 @@ def test_recovers_a_known_sigma_of_slope_within_10_percent():
     noise = 0.6 * rng.normal(size=surface.shape) + 0.8 * _correlated(rng, surface.shape, 2)
     dh = (noise * _true_sigma(slope)).astype(np.float32)
     dh[100:140, 250:300] -= 3.0  # a landslide must not inflate its bins
-    model = fit_error_model(dh, slope, curvature, PIXEL)
+    model, _ = fit_error_model(dh, slope, curvature, PIXEL)
     sigma = model.sigma(slope, curvature)
     ratios = []
     for low in range(0, 45, 5):
@@ -84,7 +83,7 @@ def test_per_pixel_lod_covers_95_percent_on_flat_and_steep_ground():
         surface = _valley(300)
         slope, curvature = terrain_attributes(surface, PIXEL)
         dh = (rng.normal(size=surface.shape) * _true_sigma(slope)).astype(np.float32)
-        model = fit_error_model(dh, slope, curvature, PIXEL)
+        model, _ = fit_error_model(dh, slope, curvature, PIXEL)
         lod = LOD_Z * model.sigma(slope, curvature)
         beyond = np.abs(dh - model.median_dh_m) > lod
         exceed["flat"].append(beyond[slope < 10].mean())
@@ -100,7 +99,7 @@ def test_effective_samples_match_the_spread_of_area_means():
         np.float32
     )
     flat = np.zeros(shape, np.float32)
-    model = fit_error_model(dh, flat, flat, PIXEL)
+    model, _ = fit_error_model(dh, flat, flat, PIXEL)
     side = 20  # 10 m squares: the mean over each, compared with sigma / sqrt(n_eff)
     means = [
         dh[r : r + side, c : c + side].mean()
@@ -121,20 +120,9 @@ def test_polygon_intervals_cover_the_planted_slide():
         true_dh[60:100, 70:120] = -1.2
         dh = (true_dh + noise).astype(np.float32)
         flat = np.zeros(shape, np.float32)
-        model = fit_error_model(dh, flat, flat, PIXEL)
+        model, _ = fit_error_model(dh, flat, flat, PIXEL)
         lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
-        centred = dh - model.median_dh_m
-        significance = np.zeros(shape, np.uint8)
-        significance[centred < -lod] = LOSS
-        significance[centred > lod] = GAIN
-        rasters = ChangeRasters(
-            dh=centred.astype(np.float32),
-            lod=lod,
-            significance=significance,
-            transform=from_origin(500000, 4000000, PIXEL, PIXEL),
-            crs="EPSG:32654",
-            model=model,
-        )
+        rasters = change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
         options = RegionOptions()
         labels, keep, windows = label_regions(
             significant_regions(rasters, options), rasters, options
@@ -162,20 +150,9 @@ def _no_change_rasters(seed: int, width_px: float, planted: bool) -> ChangeRaste
         dh[200:203, 60:63] += 3.0  # a spike of the reconstruction, 2.25 m2
     dh = dh.astype(np.float32)
     flat = np.zeros(shape, np.float32)
-    model = fit_error_model(dh, flat, flat, PIXEL)
+    model, _ = fit_error_model(dh, flat, flat, PIXEL)
     lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
-    centred = (dh - model.median_dh_m).astype(np.float32)
-    significance = np.zeros(shape, np.uint8)
-    significance[centred < -lod] = LOSS
-    significance[centred > lod] = GAIN
-    return ChangeRasters(
-        dh=centred,
-        lod=lod,
-        significance=significance,
-        transform=from_origin(500000, 4000000, PIXEL, PIXEL),
-        crs="EPSG:32654",
-        model=model,
-    )
+    return change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
 
 
 def test_a_small_strong_change_is_kept_and_correlated_error_is_not():

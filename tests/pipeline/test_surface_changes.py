@@ -8,9 +8,9 @@ a slide carried off are cut from its ground by the LoD: lost within 5 m of it, t
 """
 
 import numpy as np
-from rasterio.transform import from_origin
 from scipy import ndimage
 
+from tests.pipeline.change_rasters import change_rasters
 from worker.pipeline.change_regions import (
     LANDSLIDE,
     SURFACE_CHANGE,
@@ -22,7 +22,6 @@ from worker.pipeline.change_regions import (
     significant_regions,
     split_surface_changes,
 )
-from worker.pipeline.difference import GAIN, LOSS
 from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
 
 PIXEL = 0.5
@@ -45,11 +44,7 @@ def _crowns(rng: np.random.Generator, centres: list[tuple[int, int]], grow_m: fl
 
 
 def _rasters(pre: np.ndarray, post: np.ndarray) -> ChangeRasters:
-    dh = (post - pre).astype(np.float32)
-    lod = np.full(SHAPE, LOD_Z * SIGMA, np.float32)
-    significance = np.zeros(SHAPE, np.uint8)
-    significance[dh < -lod] = LOSS
-    significance[dh > lod] = GAIN
+    """The pair's change under one sigma everywhere (SIGMA)."""
     model = ErrorModel(
         pixel_size=PIXEL,
         slope_centres_deg=[0.0],
@@ -57,19 +52,12 @@ def _rasters(pre: np.ndarray, post: np.ndarray) -> ChangeRasters:
         sigma_table=[[SIGMA]],
         median_dh_m=0.0,
         nmad_m=SIGMA,
-        stable_pixels=int(dh.size),
+        stable_pixels=pre.size,
         variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
     )
-    return ChangeRasters(
-        dh=dh,
-        lod=lod,
-        significance=significance,
-        transform=from_origin(500000, 4000000, PIXEL, PIXEL),
-        crs="EPSG:32654",
-        model=model,
-        pre=pre.astype(np.float32),
-        post=post.astype(np.float32),
-    )
+    lod = np.full(SHAPE, LOD_Z * SIGMA, np.float32)
+    dh = (post - pre).astype(np.float32)
+    return change_rasters(dh, lod, model, PIXEL, pre.astype(np.float32), post.astype(np.float32))
 
 
 def _forest_pair(seed: int) -> tuple[ChangeRasters, list[tuple[int, int]]]:

@@ -28,7 +28,6 @@ from worker.pipeline.error_model import (
     ErrorModel,
     ErrorModelOptions,
     fit_error_model,
-    fit_error_model_and_sigma,
     terrain_attributes,
 )
 from worker.pipeline.errors import InputError
@@ -183,11 +182,11 @@ def _error_model(
     model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
     if options.error_model == "heteroscedastic":
         try:
-            return fit_error_model_and_sigma(dh, slope, curvature, pixel_size, model_options)
+            return fit_error_model(dh, slope, curvature, pixel_size, model_options)
         except ValueError as exc:
             raise InputError(f"cannot learn the error of the difference: {exc}") from None
     # The uniform baseline: one sigma everywhere; the variogram still gives intervals.
-    model = fit_error_model(
+    model, _ = fit_error_model(
         dh, slope, curvature, pixel_size, model_options, candidate_stable=stable
     )
     model.slope_centres_deg = [0.0]

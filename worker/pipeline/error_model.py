@@ -250,28 +250,14 @@ def fit_error_model(
     pixel_size: float,
     options: ErrorModelOptions | None = None,
     candidate_stable: np.ndarray | None = None,
-) -> ErrorModel:
-    """Fit sigma_dh(slope, curvature) and the variogram of the standardised difference.
+) -> tuple[ErrorModel, np.ndarray]:
+    """Fit sigma_dh(slope, curvature) and the variogram of the standardised difference;
+    return the model and its sigma_dh at every pixel (float32), which the fit computes
+    anyway (a second pass over a large raster costs seconds).
 
     `candidate_stable` (optional, bool) limits where stable terrain may be looked for
     (e.g. outside a user's known active area); change is excluded within it regardless.
     """
-    model, _ = fit_error_model_and_sigma(
-        dh, slope_deg, curvature, pixel_size, options, candidate_stable
-    )
-    return model
-
-
-def fit_error_model_and_sigma(
-    dh: np.ndarray,
-    slope_deg: np.ndarray,
-    curvature: np.ndarray,
-    pixel_size: float,
-    options: ErrorModelOptions | None = None,
-    candidate_stable: np.ndarray | None = None,
-) -> tuple[ErrorModel, np.ndarray]:
-    """`fit_error_model` and the model's sigma_dh at every pixel (float32), which the
-    fit has computed anyway: a caller needing both saves a pass over the raster."""
     options = options or ErrorModelOptions()
     valid = np.isfinite(dh) & np.isfinite(slope_deg) & np.isfinite(curvature)
     if candidate_stable is not None:
