@@ -16,6 +16,7 @@ from worker.pipeline.change_regions import (
 )
 from worker.pipeline.error_model import (
     LOD_Z,
+    ErrorModelOptions,
     _fill_and_make_monotone,
     fit_error_model,
     terrain_attributes,
@@ -220,3 +221,33 @@ def test_sigma_is_the_bilinear_table_clamped_beyond_its_centres():
     finite = np.isfinite(slope) & np.isfinite(curvature)
     assert np.count_nonzero(np.isnan(sigma)) == 2
     np.testing.assert_allclose(sigma[finite], reference[finite], rtol=1e-6)
+
+
+def test_change_over_much_of_the_steep_ground_does_not_inflate_its_sigma():
+    """Where change covers nearly half the steep ground (as on a small site whose mounds
+    collapsed), its shallow flanks pass the 4-sigma pixel exclusion and the steep bins
+    learn from them, until the regions whose |dh| averages twice their LoD are left out
+    and the table fitted again."""
+    rng = np.random.default_rng(21)
+    surface = _valley(500)
+    slope, curvature = terrain_attributes(surface, PIXEL)
+    true_sigma = _true_sigma(slope)
+    dh = (rng.normal(size=surface.shape) * true_sigma).astype(np.float32)
+    steep = slope > 30
+    # Pits 8 m square on a 12 m grid over the steep ground, 12 true sigmas deep at the
+    # centre and shallowing to nothing at the edge.
+    rows, cols = np.mgrid[0 : surface.shape[0], 0 : surface.shape[1]] % 24 - 7.5
+    depth = np.clip(1.0 - np.maximum(np.abs(rows), np.abs(cols)) / 8.0, 0.0, None)
+    pits = steep & (depth > 0)
+    dh[pits] -= (12.0 * depth[pits] * true_sigma[pits]).astype(np.float32)
+    assert 0.4 < pits.sum() / steep.sum() < 0.5
+
+    def steep_ratio(options: ErrorModelOptions) -> float:
+        _, sigma = fit_error_model(dh, slope, curvature, PIXEL, options)
+        band = steep & ~pits
+        return float(np.median(sigma[band] / true_sigma[band]))
+
+    once = steep_ratio(ErrorModelOptions())
+    again = steep_ratio(ErrorModelOptions(strong_change_lod_ratio=2.0))
+    assert once > 1.1, once  # the pits' flanks inflate the steep bins
+    assert 0.95 <= again <= 1.06, again

@@ -50,6 +50,9 @@ class DifferenceOptions:
     outlier_nmad_factor: float = 4.0  # uniform model: exclusion of change pixels
     min_stable_pixels: int = 1_000
     attribute_scale_m: float = 0.1  # slope and curvature measured at this scale
+    # The per-pixel model is fitted again without regions whose |dh| averages this many
+    # LoDs (see ErrorModelOptions); None: fitted once. The uniform baseline ignores it.
+    strong_change_lod_ratio: float | None = 2.0
 
 
 @dataclass
@@ -181,6 +184,7 @@ def _error_model(
     """The error model and its sigma_dh per pixel (float32)."""
     model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
     if options.error_model == "heteroscedastic":
+        model_options.strong_change_lod_ratio = options.strong_change_lod_ratio
         try:
             return fit_error_model(dh, slope, curvature, pixel_size, model_options)
         except ValueError as exc:

@@ -21,7 +21,10 @@ Stable terrain is every valid pixel not excluded as change: the fit is repeated 
 pixels more than `exclusion_z` sigmas from the median (grown by a few pixels) left out,
 so a landslide or a felled tree does not inflate its bin. The coregistration's stable
 mask is not used: it excludes by one global NMAD, which would cut the tails of steep
-bins and understate their error.
+bins and understate their error. Optionally (`strong_change_lod_ratio`), regions whose
+|dh| averages that many LoDs are then left out whole, grown by half the correlation
+length, and the table fitted again: a slide's shallow flanks pass the pixel exclusion,
+and where change covers much of the steep ground they inflate its bins.
 """
 
 from __future__ import annotations
@@ -53,6 +56,10 @@ class ErrorModelOptions:
     iterations: int = 3
     variogram_window_px: int = 768  # the variogram is computed on a window this large
     attribute_scale_m: float = 0.1  # slope and curvature are measured at this scale
+    # Regions of significant change whose |dh| averages this many times their LoD are left
+    # out (grown by half the errors' correlation length) and the table fitted again.
+    strong_change_lod_ratio: float | None = None
+    strong_change_min_px: int = 64
     seed: int = 0
 
 
@@ -265,7 +272,59 @@ def fit_error_model(
     if np.count_nonzero(valid) < options.min_bin_count:
         raise ValueError("too few valid pixels to learn the error of the difference")
     rng = np.random.default_rng(options.seed)
-    stable = valid.copy()
+    model, sigma, z, stable = _fit_table(
+        dh, slope_deg, curvature, valid, valid.copy(), pixel_size, rng, options
+    )
+    model.variogram = _fit_variogram(z, stable, pixel_size, options)
+    if options.strong_change_lod_ratio is not None:
+        strong = _strong_change(dh, sigma, valid, model, options)
+        if strong.any():
+            buffer_px = int(
+                min(max(math.ceil(0.5 * model.correlation_length_m / pixel_size), 2), 64)
+            )
+            grown = ndimage.maximum_filter(strong.view(np.uint8), size=2 * buffer_px + 1) > 0
+            model, sigma, z, stable = _fit_table(
+                dh, slope_deg, curvature, valid, valid & ~grown, pixel_size, rng, options
+            )
+            model.variogram = _fit_variogram(z, stable, pixel_size, options)
+    return model, sigma
+
+
+def _strong_change(
+    dh: np.ndarray,
+    sigma: np.ndarray,
+    valid: np.ndarray,
+    model: ErrorModel,
+    options: ErrorModelOptions,
+) -> np.ndarray:
+    """Regions beyond their LoD whose |dh| averages strong_change_lod_ratio LoDs or more."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.abs(dh - np.float32(model.median_dh_m)) / (np.float32(LOD_Z) * sigma)
+    significant = valid & (ratio > 1.0)
+    significant = ndimage.binary_opening(significant, structure=np.ones((3, 3), bool))
+    labels, count = ndimage.label(significant, structure=np.ones((3, 3), bool))
+    if not count:
+        return significant
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    total = np.bincount(labels[significant], weights=ratio[significant], minlength=count + 1)
+    mean = total / np.maximum(sizes, 1)
+    keep = (sizes >= options.strong_change_min_px) & (mean >= options.strong_change_lod_ratio)
+    keep[0] = False
+    return keep[labels]
+
+
+def _fit_table(
+    dh: np.ndarray,
+    slope_deg: np.ndarray,
+    curvature: np.ndarray,
+    valid: np.ndarray,
+    stable: np.ndarray,
+    pixel_size: float,
+    rng: np.random.Generator,
+    options: ErrorModelOptions,
+) -> tuple[ErrorModel, np.ndarray, np.ndarray, np.ndarray]:
+    """The sigma table refitted with pixels beyond exclusion_z left out, from `stable`:
+    the model, its sigma, z, and the stable pixels of the last round."""
     model: ErrorModel | None = None
     sigma: np.ndarray | None = None
     for _ in range(max(options.iterations, 1)):
@@ -283,9 +342,7 @@ def fit_error_model(
             break
         stable = new_stable
     assert model is not None and sigma is not None
-    # The variogram is that of z under the last model, the one returned.
-    model.variogram = _fit_variogram(z, stable, pixel_size, options)
-    return model, sigma
+    return model, sigma, z, stable
 
 
 def _fit_heteroscedasticity(
