@@ -42,6 +42,13 @@ def binned_median(
     return counts, medians
 
 
+def binned_mean(values: np.ndarray, bins: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(count, mean) of `values` in each bin 0..n_bins-1 (mean 0 where a bin is empty)."""
+    counts = np.bincount(bins, minlength=n_bins)
+    totals = np.bincount(bins, weights=values.astype(np.float64), minlength=n_bins)
+    return counts, np.divide(totals, counts, out=np.zeros(n_bins), where=counts > 0)
+
+
 def binned_nmad(values: np.ndarray, bins: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
     """(count, NMAD) of `values` in each bin: 1.4826 x the median of |value - bin median|."""
     counts, medians = binned_median(values, bins, n_bins)

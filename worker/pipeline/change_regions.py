@@ -40,6 +40,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry import shape as to_shape
 
+from worker.pipeline.binned import binned_mean
 from worker.pipeline.detection_record import DetectionProperties, Uncertainty
 from worker.pipeline.difference import (
     ERROR_MODEL_FILE,
@@ -249,11 +250,8 @@ def label_regions(
 def _mean_lod_ratio(labels: np.ndarray, rasters: ChangeRasters, count: int) -> np.ndarray:
     """Per label, the mean over its finite pixels of |dh| / LoD (0 where it has none)."""
     finite = (labels > 0) & np.isfinite(rasters.dh) & (rasters.lod > 0)
-    ids = labels[finite]
     ratio = np.abs(rasters.dh[finite]).astype(np.float64) / rasters.lod[finite]
-    total = np.bincount(ids, weights=ratio, minlength=count)
-    n = np.bincount(ids, minlength=count)
-    return np.divide(total, n, out=np.zeros(count), where=n > 0)
+    return binned_mean(ratio, labels[finite], count)[1]
 
 
 @dataclass

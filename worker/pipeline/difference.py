@@ -52,7 +52,7 @@ class DifferenceOptions:
     attribute_scale_m: float = 0.1  # slope and curvature measured at this scale
     # The per-pixel model is fitted again without regions whose |dh| averages this many
     # LoDs (see ErrorModelOptions); None: fitted once. The uniform baseline ignores it.
-    strong_change_lod_ratio: float | None = 2.0
+    strong_change_lod_ratio: float | None = ErrorModelOptions.strong_change_lod_ratio
 
 
 @dataclass
@@ -182,14 +182,18 @@ def _error_model(
     options: DifferenceOptions,
 ) -> tuple[ErrorModel, np.ndarray]:
     """The error model and its sigma_dh per pixel (float32)."""
-    model_options = ErrorModelOptions(attribute_scale_m=options.attribute_scale_m)
+    model_options = ErrorModelOptions(
+        attribute_scale_m=options.attribute_scale_m,
+        strong_change_lod_ratio=options.strong_change_lod_ratio,
+    )
     if options.error_model == "heteroscedastic":
-        model_options.strong_change_lod_ratio = options.strong_change_lod_ratio
         try:
             return fit_error_model(dh, slope, curvature, pixel_size, model_options)
         except ValueError as exc:
             raise InputError(f"cannot learn the error of the difference: {exc}") from None
-    # The uniform baseline: one sigma everywhere; the variogram still gives intervals.
+    # The uniform baseline: one sigma everywhere, as it always was; the variogram of a
+    # single fit still gives intervals.
+    model_options.strong_change_lod_ratio = None
     model, _ = fit_error_model(
         dh, slope, curvature, pixel_size, model_options, candidate_stable=stable
     )
