@@ -96,3 +96,55 @@ def test_grids_must_match(tmp_path):
     write_geotiff(tmp_path / "small.tif", np.ones((50, 50), np.float32), TRANSFORM, "EPSG:32632")
     with pytest.raises(InputError, match="same grid"):
         difference(pre, tmp_path / "small.tif", tmp_path / "dh.tif", tmp_path / "sig.tif")
+
+
+def _flat_and_steep(tmp_path, seed=0):
+    """Flat ground with little noise beside a 40-degree slope with much: the per-pixel
+    LoD is below the raster's one-NMAD LoD on the flat and above it on the slope."""
+    rng = np.random.default_rng(seed)
+    cols = np.mgrid[0:300, 0:300][1].astype(np.float32)
+    steep = cols >= 100
+    pre = np.where(steep, (cols - 100) * np.tan(np.radians(40.0)), 0.0).astype(np.float32)
+    sigma = np.where(steep, 0.40, 0.03)
+    post = (pre + rng.normal(size=pre.shape) * sigma).astype(np.float32)
+    post[40:80, 30:70] -= 0.2  # a shallow loss on the flat: over 3 per-pixel LoDs
+    post[200:240, 200:240] -= 4.0  # a deep loss on the slope
+    write_geotiff(tmp_path / "pre.tif", pre, TRANSFORM, "EPSG:32632")
+    write_geotiff(tmp_path / "post.tif", post, TRANSFORM, "EPSG:32632")
+    return tmp_path / "pre.tif", tmp_path / "post.tif", steep
+
+
+def _significance(tmp_path, name, options):
+    pre, post, steep = _flat_and_steep(tmp_path)
+    result = difference(pre, post, tmp_path / f"dh-{name}.tif", tmp_path / f"{name}.tif", options)
+    return result, rasterio.open(tmp_path / f"{name}.tif").read(1), steep
+
+
+def test_default_marks_no_change_the_uniform_baseline_does_not(tmp_path):
+    """The default is never looser than the simple baseline: every pixel it marks, the
+    one-NMAD LoD marks with the same sign, and its LoD is nowhere below that one; on the
+    slope, where errors are larger, it marks far less noise than the baseline does."""
+    default, sig, steep = _significance(tmp_path, "default", None)
+    uniform, base, _ = _significance(tmp_path, "uniform", DifferenceOptions(error_model="uniform"))
+    marked = (sig == 1) | (sig == 2)
+    assert np.count_nonzero(marked) > 1600
+    assert np.all(base[marked] == sig[marked])
+    lod, _ = read_elevation(tmp_path / "lod.tif")
+    assert np.nanmin(lod) >= np.float32(uniform.lod95_m) * (1 - 1e-6)
+    assert default.lod_p10_m == pytest.approx(uniform.lod95_m, rel=1e-6)
+    noise = steep.copy()
+    noise[190:250, 190:250] = False
+    default_noise = np.count_nonzero(marked & noise) / np.count_nonzero(noise)
+    uniform_noise = np.count_nonzero(((base == 1) | (base == 2)) & noise) / np.count_nonzero(noise)
+    assert default_noise < 0.08 and uniform_noise > 0.2, (default_noise, uniform_noise)
+    assert np.all(sig[205:235, 205:235] == 1)  # the deep loss on the slope is found
+
+
+def test_without_the_uniform_floor_a_shallow_change_on_quiet_ground_is_marked(tmp_path):
+    """What the floor gives up: a loss of 0.2 m on ground whose own error is 3 cm passes
+    the per-pixel LoD alone, not the raster's LoD raised by the noisy slope."""
+    _, floored, _ = _significance(tmp_path, "default", None)
+    _, alone, _ = _significance(tmp_path, "alone", DifferenceOptions(uniform_floor=False))
+    shallow = (slice(45, 75), slice(35, 65))
+    assert np.mean(alone[shallow] == 1) > 0.95
+    assert np.mean(floored[shallow] == 1) < 0.05

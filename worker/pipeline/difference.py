@@ -5,7 +5,9 @@ difference itself on stable terrain (error_model.py): sigma_dh per pixel from sl
 curvature, and the correlation of the errors. The level of detection is per pixel,
 LoD95 = 1.96 * sigma_dh, floored at `min_lod_m`; `error_model="uniform"` gives the simple
 baseline, one sigma (the NMAD of stable terrain) for the whole raster; a fixed `lod_m`
-overrides both. The significance mask (uint8) holds 0 no significant change, 1 loss
+overrides both. By default (`uniform_floor`) the per-pixel LoD is also floored at the
+baseline's and a pixel must pass the baseline's test as well, so the default never marks
+a pixel the baseline would not (docs/significance.md, "The baseline as a floor"). The significance mask (uint8) holds 0 no significant change, 1 loss
 (dh < -LoD), 2 gain (dh > +LoD), 255 nodata.
 
 Outputs: `dh_out`, `significance_out` (its LOD_M tag is the median LoD), and beside them
@@ -53,6 +55,10 @@ class DifferenceOptions:
     # The per-pixel model is fitted again without regions whose |dh| averages this many
     # LoDs (see ErrorModelOptions); None: fitted once. The uniform baseline ignores it.
     strong_change_lod_ratio: float | None = ErrorModelOptions.strong_change_lod_ratio
+    # The per-pixel LoD is never below the raster's one-NMAD LoD95, and a pixel must pass
+    # that test too (about the baseline's own median): the default never marks change the
+    # simple baseline does not, and keeps the error model's higher LoD on rough ground.
+    uniform_floor: bool = True
 
 
 @dataclass
@@ -121,13 +127,17 @@ def difference(
     progress(0.3)
     model, sigma = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
     progress(0.7)
+    floored = (
+        options.uniform_floor and options.error_model == "heteroscedastic" and options.lod_m is None
+    )
     if options.lod_m is not None:
         if not options.lod_m > 0:
             raise InputError("the level of detection must be a positive number of metres")
         lod = np.where(valid, np.float32(options.lod_m), np.nan).astype(np.float32)
         kind = "fixed"
     else:
-        lod = np.maximum(sigma * np.float32(LOD_Z), np.float32(options.min_lod_m))
+        floor = max(options.min_lod_m, lod95 if floored else 0.0)
+        lod = np.maximum(sigma * np.float32(LOD_Z), np.float32(floor))
         lod[~valid] = np.nan
         kind = options.error_model
     del slope, curvature, sigma
@@ -135,9 +145,16 @@ def difference(
     significance = np.full(dh.shape, MASK_NODATA, dtype=np.uint8)
     significance[valid] = NO_CHANGE
     with np.errstate(invalid="ignore"):
-        significance[valid & (centred < -lod)] = LOSS
-        significance[valid & (centred > lod)] = GAIN
-    del centred
+        loss = valid & (centred < -lod)
+        gain = valid & (centred > lod)
+        if floored:
+            baseline = dh - np.float32(median)
+            loss &= baseline < -np.float32(lod95)
+            gain &= baseline > np.float32(lod95)
+            del baseline
+    significance[loss] = LOSS
+    significance[gain] = GAIN
+    del centred, loss, gain
     lod_values = lod[valid]
     lod_median = float(np.median(lod_values))
     write_geotiff(dh_out, dh, transform, crs)

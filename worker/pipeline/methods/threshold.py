@@ -34,8 +34,8 @@ def run_vectorize(context: ComparisonContext, progress: ProgressFn) -> Vectorize
 METHOD = DetectionMethod(
     name="threshold",
     summary="The LoD method: every change beyond its per-pixel level of detection "
-    "(LoD95 from slope and curvature), larger than the errors' correlation or, if smaller, "
-    "twice its LoD.",
+    "(LoD95 from slope and curvature, never below the raster's one-NMAD LoD), larger than "
+    "the errors' correlation or, if smaller, twice its LoD.",
     stage=StageSpec(
         name="vectorize",
         run=run_vectorize,
