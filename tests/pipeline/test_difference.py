@@ -98,9 +98,10 @@ def test_grids_must_match(tmp_path):
         difference(pre, tmp_path / "small.tif", tmp_path / "dh.tif", tmp_path / "sig.tif")
 
 
-def _flat_and_steep(tmp_path, seed=0):
+def _flat_and_steep(tmp_path, seed=0, flank_m=0.0):
     """Flat ground with little noise beside a 40-degree slope with much: the per-pixel
-    LoD is below the raster's one-NMAD LoD on the flat and above it on the slope."""
+    LoD is below the raster's one-NMAD LoD on the flat and above it on the slope. With
+    `flank_m`, the deep loss on the slope has a 10-pixel flank that much shallower."""
     rng = np.random.default_rng(seed)
     cols = np.mgrid[0:300, 0:300][1].astype(np.float32)
     steep = cols >= 100
@@ -108,14 +109,15 @@ def _flat_and_steep(tmp_path, seed=0):
     sigma = np.where(steep, 0.40, 0.03)
     post = (pre + rng.normal(size=pre.shape) * sigma).astype(np.float32)
     post[40:80, 30:70] -= 0.2  # a shallow loss on the flat: over 3 per-pixel LoDs
-    post[200:240, 200:240] -= 4.0  # a deep loss on the slope
+    post[190:250, 190:250] -= flank_m
+    post[200:240, 200:240] -= 4.0 - flank_m  # a deep loss on the slope
     write_geotiff(tmp_path / "pre.tif", pre, TRANSFORM, "EPSG:32632")
     write_geotiff(tmp_path / "post.tif", post, TRANSFORM, "EPSG:32632")
     return tmp_path / "pre.tif", tmp_path / "post.tif", steep
 
 
-def _significance(tmp_path, name, options):
-    pre, post, steep = _flat_and_steep(tmp_path)
+def _significance(tmp_path, name, options, flank_m=0.0):
+    pre, post, steep = _flat_and_steep(tmp_path, flank_m=flank_m)
     result = difference(pre, post, tmp_path / f"dh-{name}.tif", tmp_path / f"{name}.tif", options)
     return result, rasterio.open(tmp_path / f"{name}.tif").read(1), steep
 
@@ -134,8 +136,8 @@ def test_default_marks_no_change_the_uniform_baseline_does_not(tmp_path):
     assert default.lod_p10_m == pytest.approx(uniform.lod95_m, rel=1e-6)
     noise = steep.copy()
     noise[190:250, 190:250] = False
-    default_noise = np.count_nonzero(marked & noise) / np.count_nonzero(noise)
-    uniform_noise = np.count_nonzero(((base == 1) | (base == 2)) & noise) / np.count_nonzero(noise)
+    default_noise = _marked_share(sig, noise)
+    uniform_noise = _marked_share(base, noise)
     assert default_noise < 0.08 and uniform_noise > 0.2, (default_noise, uniform_noise)
     assert np.all(sig[205:235, 205:235] == 1)  # the deep loss on the slope is found
 
@@ -148,3 +150,29 @@ def test_without_the_uniform_floor_a_shallow_change_on_quiet_ground_is_marked(tm
     shallow = (slice(45, 75), slice(35, 65))
     assert np.mean(alone[shallow] == 1) > 0.95
     assert np.mean(floored[shallow] == 1) < 0.05
+
+
+def test_the_flanks_of_a_deep_loss_on_steep_ground_join_it(tmp_path):
+    """A 0.6 m flank around a deep loss on ground with 0.4 m of noise: under the per-pixel
+    LoD (0.78 m) at most pixels, past the baseline's (0.37 m) at most, and significant
+    as an area: it joins the loss it touches. Noise elsewhere on the slope does not."""
+    flank = np.zeros((300, 300), bool)
+    flank[190:250, 190:250] = True
+    flank[200:240, 200:240] = False
+    _, joined, steep = _significance(tmp_path, "joined", None, flank_m=0.6)
+    options = DifferenceOptions(flank_area_z=None)
+    _, alone, _ = _significance(tmp_path, "alone", options, flank_m=0.6)
+    _, base, _ = _significance(
+        tmp_path, "base", DifferenceOptions(error_model="uniform"), flank_m=0.6
+    )
+    assert np.mean(alone[flank] == 1) < 0.45
+    assert np.mean(joined[flank] == 1) > 0.6
+    assert np.all(base[joined == 1] == 1)  # still nothing the baseline does not mark
+    noise = steep.copy()
+    noise[180:260, 180:260] = False
+    assert _marked_share(joined, noise) < _marked_share(alone, noise) + 0.005
+
+
+def _marked_share(significance, where):
+    marked = (significance == 1) | (significance == 2)
+    return np.count_nonzero(marked & where) / np.count_nonzero(where)

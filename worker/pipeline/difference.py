@@ -7,7 +7,9 @@ LoD95 = 1.96 * sigma_dh, floored at `min_lod_m`; `error_model="uniform"` gives t
 baseline, one sigma (the NMAD of stable terrain) for the whole raster; a fixed `lod_m`
 overrides both. By default (`uniform_floor`) the per-pixel LoD is also floored at the
 baseline's and a pixel must pass the baseline's test as well, so the default never marks
-a pixel the baseline would not (docs/significance.md, "The baseline as a floor"). The significance mask (uint8) holds 0 no significant change, 1 loss
+a pixel the baseline would not (docs/significance.md, "The baseline as a floor"); pixels
+past the baseline's LoD whose neighbourhood is significant as an area join the change
+they touch (`flank_area_z`). The significance mask (uint8) holds 0 no significant change, 1 loss
 (dh < -LoD), 2 gain (dh > +LoD), 255 nodata.
 
 Outputs: `dh_out`, `significance_out` (its LOD_M tag is the median LoD), and beside them
@@ -23,12 +25,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from worker.pipeline.atomic import write_text_atomic
 from worker.pipeline.error_model import (
     LOD_Z,
     ErrorModel,
     ErrorModelOptions,
+    area_t,
     fit_error_model,
     terrain_attributes,
 )
@@ -59,6 +63,12 @@ class DifferenceOptions:
     # that test too (about the baseline's own median): the default never marks change the
     # simple baseline does not, and keeps the error model's higher LoD on rough ground.
     uniform_floor: bool = True
+    # With the floor: pixels beyond the baseline's LoD (same sign) whose neighbourhood is
+    # significant as an area under the error model (mean z beyond this many standard
+    # errors, as the scored method's area candidates) join the significant change they
+    # touch: the flanks of a change on steep ground, under the per-pixel LoD there but
+    # coherent with it. None: the floored pixel test alone.
+    flank_area_z: float | None = 4.0
 
 
 @dataclass
@@ -140,7 +150,7 @@ def difference(
         lod = np.maximum(sigma * np.float32(LOD_Z), np.float32(floor))
         lod[~valid] = np.nan
         kind = options.error_model
-    del slope, curvature, sigma
+    del slope, curvature
     centred = dh - np.float32(model.median_dh_m if options.lod_m is None else 0.0)
     significance = np.full(dh.shape, MASK_NODATA, dtype=np.uint8)
     significance[valid] = NO_CHANGE
@@ -151,10 +161,18 @@ def difference(
             baseline = dh - np.float32(median)
             loss &= baseline < -np.float32(lod95)
             gain &= baseline > np.float32(lod95)
+            if options.flank_area_z is not None:
+                _, t, weight = area_t(centred / sigma, model, pixel_size)
+                coherent = weight > 0.5
+                flanks = coherent & (t < -options.flank_area_z) & (baseline < -np.float32(lod95))
+                loss |= touching(flanks, loss)
+                flanks = coherent & (t > options.flank_area_z) & (baseline > np.float32(lod95))
+                gain |= touching(flanks, gain)
+                del t, weight, coherent, flanks
             del baseline
     significance[loss] = LOSS
     significance[gain] = GAIN
-    del centred, loss, gain
+    del centred, loss, gain, sigma
     lod_values = lod[valid]
     lod_median = float(np.median(lod_values))
     write_geotiff(dh_out, dh, transform, crs)
@@ -181,6 +199,18 @@ def difference(
         pixel_area_m2=float(abs(transform.a * transform.e)),
         seconds=time.perf_counter() - start,
     )
+
+
+def touching(candidates: np.ndarray, core: np.ndarray) -> np.ndarray:
+    """The candidate pixels 8-connected to `core` through candidates (both bool)."""
+    labels, count = ndimage.label(candidates, structure=np.ones((3, 3), dtype=bool))
+    if not count:
+        return candidates
+    dilated = ndimage.binary_dilation(core, structure=np.ones((3, 3), dtype=bool))
+    hit = np.zeros(count + 1, dtype=bool)
+    hit[np.unique(labels[dilated & candidates])] = True
+    hit[0] = False
+    return hit[labels]
 
 
 def read_error_model(work_dir: Path) -> ErrorModel:

@@ -187,6 +187,23 @@ class ErrorModel:
 _SIGMA_BAND = 1 << 18
 
 
+def area_t(
+    z: np.ndarray, model: ErrorModel, pixel_size: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Around each pixel, over a square of the errors' correlation size: the mean of the
+    standardised difference z, that mean in units of its own standard error (sqrt(n_eff)
+    under the variogram), and the share of the square that has data."""
+    valid = np.isfinite(z)
+    length = max(model.correlation_length_m, 3 * pixel_size)
+    radius_px = int(min(max(math.ceil(length / pixel_size), 3), 64))
+    size = 2 * radius_px + 1
+    filled = np.where(valid, z, 0.0).astype(np.float32)
+    weight = ndimage.uniform_filter(valid.astype(np.float32), size, mode="constant")
+    mean = ndimage.uniform_filter(filled, size, mode="constant") / np.maximum(weight, 1e-6)
+    t = mean / np.float32(model.mean_error_factor((size * pixel_size) ** 2))
+    return mean, t, weight
+
+
 def _bilinear(
     padded: np.ndarray,
     width: int,

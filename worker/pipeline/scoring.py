@@ -12,13 +12,11 @@ vanished with no ground motion around them are set aside as surface changes.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from worker.pipeline.change_regions import (
     ChangeRasters,
@@ -34,6 +32,7 @@ from worker.pipeline.change_regions import (
     split_surface_changes,
 )
 from worker.pipeline.detection_record import write_detections
+from worker.pipeline.error_model import area_t
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.scorer import load_scorer
@@ -115,14 +114,7 @@ def area_significant(rasters: ChangeRasters, options: ScoreOptions) -> np.ndarra
     valid = np.isfinite(z)
     if not valid.any():
         return np.zeros(z.shape, dtype=bool)
-    length = max(rasters.model.correlation_length_m, 3 * rasters.pixel_size)
-    radius_px = int(min(max(math.ceil(length / rasters.pixel_size), 3), 64))
-    size = 2 * radius_px + 1
-    filled = np.where(valid, z, 0.0).astype(np.float32)
-    weight = ndimage.uniform_filter(valid.astype(np.float32), size, mode="constant")
-    mean = ndimage.uniform_filter(filled, size, mode="constant") / np.maximum(weight, 1e-6)
-    area = (size * rasters.pixel_size) ** 2
-    t = mean / rasters.model.mean_error_factor(area)
+    mean, t, weight = area_t(z, rasters.model, rasters.pixel_size)
     with np.errstate(invalid="ignore"):
         candidate = valid & (weight > 0.5) & (np.abs(t) > options.area_z)
         candidate &= np.abs(z) > options.min_pixel_z
