@@ -7,10 +7,10 @@ LoD95 = 1.96 * sigma_dh, floored at `min_lod_m`; `error_model="uniform"` gives t
 baseline, one sigma (the NMAD of stable terrain) for the whole raster; a fixed `lod_m`
 overrides both. By default (`uniform_floor`) the per-pixel LoD is also floored at the
 baseline's and a pixel must pass the baseline's test as well, so the default never marks
-a pixel the baseline would not (docs/significance.md, "The baseline as a floor"); pixels
-past the baseline's LoD whose neighbourhood is significant as an area join the change
-they touch (`flank_area_z`). The significance mask (uint8) holds 0 no significant change, 1 loss
-(dh < -LoD), 2 gain (dh > +LoD), 255 nodata.
+a pixel the baseline would not; pixels past the baseline's LoD whose neighbourhood is
+significant as an area join the change they touch (`flank_area_z`; docs/significance.md,
+"The baseline as a floor, and the flanks of change"). The significance mask (uint8)
+holds 0 no significant change, 1 loss (dh < -LoD), 2 gain (dh > +LoD), 255 nodata.
 
 Outputs: `dh_out`, `significance_out` (its LOD_M tag is the median LoD), and beside them
 `lod.tif` (per-pixel LoD95, float32) and `error_model.json` (the fitted model, which the
@@ -163,12 +163,11 @@ def difference(
             gain &= baseline > np.float32(lod95)
             if options.flank_area_z is not None:
                 _, t, weight = area_t(centred / sigma, model, pixel_size)
-                coherent = weight > 0.5
-                flanks = coherent & (t < -options.flank_area_z) & (baseline < -np.float32(lod95))
-                loss |= touching(flanks, loss)
-                flanks = coherent & (t > options.flank_area_z) & (baseline > np.float32(lod95))
-                gain |= touching(flanks, gain)
-                del t, weight, coherent, flanks
+                for change, sign in ((loss, -1.0), (gain, 1.0)):
+                    flanks = (weight > 0.5) & (sign * t > options.flank_area_z)
+                    flanks &= sign * baseline > np.float32(lod95)
+                    change |= _touching(flanks, change)
+                del t, weight
             del baseline
     significance[loss] = LOSS
     significance[gain] = GAIN
@@ -201,8 +200,8 @@ def difference(
     )
 
 
-def touching(candidates: np.ndarray, core: np.ndarray) -> np.ndarray:
-    """The candidate pixels 8-connected to `core` through candidates (both bool)."""
+def _touching(candidates: np.ndarray, core: np.ndarray) -> np.ndarray:
+    """The candidate pixels 8-connected to `core`, directly or through other candidates."""
     labels, count = ndimage.label(candidates, structure=np.ones((3, 3), dtype=bool))
     if not count:
         return candidates
