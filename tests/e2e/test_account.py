@@ -91,7 +91,7 @@ def test_the_platform_administrator_creates_disables_and_enables_a_user(
     page.get_by_label("API token").fill(token)
     page.get_by_role("button", name="Use token").click()
     page.get_by_role("link", name="Account").click()
-    expect(page.get_by_role("heading", name="Users")).to_be_visible()
+    expect(page.get_by_role("heading", name="Users", exact=True)).to_be_visible()
 
     page.get_by_label("New user's name").fill("kenji")
     page.get_by_label("Full name").fill("Kenji Sato")
