@@ -14,6 +14,12 @@ the bending is kept. Frames follow their keyframes. The `paper4` method is appli
 the paper does, without refinement (its 4 x 4 is not a similarity, so the map is moved
 point by point).
 
+Where the log states its accuracy (RTK, or `GeorefOptions.position_sigma_m`), a video
+segment is instead adjusted in the world frame (`georef_world.adjust_segment`): priors
+on the positions at their stated sigmas, on the logged attitude and on the clock
+offset, nothing undone; its frames between keyframes are put on the log's positions.
+Straight segments are adjusted too where the log's attitude holds their roll.
+
 Photo sets (`photos`: the photo name of each camera time) are fitted by the robust
 photo fit (`robust_fit.georeference_photos`): outlier photos are named, left out of the
 fit and of the bundle adjustment's priors, and every photo's residual after the
@@ -44,6 +50,7 @@ from worker.pipeline.georef import (
     survey_epsg,
     umeyama,
 )
+from worker.pipeline.georef_world import WorldAdjustOptions, adjust_segment
 from worker.pipeline.ingest.flight_log import FlightLog
 from worker.pipeline.robust_fit import georeference_photos, photo_table
 from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
@@ -62,6 +69,9 @@ class MapGeorefOptions:
     refine_min_straightness: float = 0.1
     min_prior_sigma_m: float = 0.02
     prior_sigma_m: tuple[float, float, float] | None = None  # None: from the residuals
+    # Where the log states its accuracy (RTK), video segments are adjusted in the world
+    # frame against the positions, the attitude and the offset instead (georef_world).
+    world: WorldAdjustOptions = field(default_factory=WorldAdjustOptions)
 
 
 @dataclass
@@ -73,6 +83,9 @@ class MapGeorefResult:
     warnings: list[str] = field(default_factory=list)
     # Photo sets: one row per registered photo (photo_table's, plus the segment).
     photos: list[dict[str, Any]] | None = None
+    # The offset the world-frame adjustment settled on (its longest segment's), when it
+    # ran with the offset free; None otherwise.
+    adjusted_offset_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -105,12 +118,16 @@ def georeference_map(
     offset_s: float,
     options: MapGeorefOptions | None = None,
     photos: dict[float, str] | None = None,
+    hold_offset: bool = True,
 ) -> MapGeorefResult:
     """Move `sparse` (in place) into the UTM zone of the survey; see the module doc.
-    `photos` (photo sets): camera time -> photo name."""
+    `photos` (photo sets): camera time -> photo name. `hold_offset`: the world-frame
+    adjustment keeps `offset_s` (the log's clock is the video's, or the user gave it)."""
     start = time.perf_counter()
     options = options or MapGeorefOptions()
     epsg = survey_epsg(log)
+    accuracy = position_accuracy(log, options.georef)
+    adjusted: list[tuple[int, float]] = []  # (keyframes, offset) of adjusted segments
     results: list[dict[str, Any]] = []
     warnings: list[str] = []
     table: list[dict[str, Any]] | None = None if photos is None else []
@@ -134,10 +151,27 @@ def georeference_map(
         entry = {"segment": segment, "frames": len(traj), "fit": fit.to_dict()}
         # The outlier photos' GPS positions must not pull the adjustment either.
         excluded = _outlier_times(fit, traj.t, photos)
+        segment_offset = offset_s
         if fit.similarity is not None:
             s = fit.similarity
             sparse.transform(s.scale, s.rotation, s.translation, segment)
-            if options.refine and fit.straightness < options.refine_min_straightness:
+            if options.refine and photos is None and accuracy is not None:
+                entry["refinement"] = adjust_segment(
+                    sparse,
+                    segment,
+                    log,
+                    offset_s,
+                    epsg,
+                    accuracy,
+                    options.world,
+                    hold_offset=hold_offset,
+                    straight=fit.straightness < options.refine_min_straightness,
+                    drift=fit.gnss_drift,
+                )
+                segment_offset = entry["refinement"]["offset_s"]
+                if entry["refinement"].get("kept"):
+                    adjusted.append((int((sparse.kf_segment == segment).sum()), segment_offset))
+            elif options.refine and fit.straightness < options.refine_min_straightness:
                 entry["refinement"] = {
                     "skipped": f"a near-straight track (straightness {fit.straightness:.3f}): "
                     "its positions cannot correct its shape"
@@ -150,7 +184,7 @@ def georeference_map(
             _apply_matrix(sparse, segment, fit)
         sparse.update_frames_from_keyframes()
         entry["residuals_after_m"] = _residuals(
-            sparse, segment, log, offset_s, epsg, excluded, fit.gnss_drift
+            sparse, segment, log, segment_offset, epsg, excluded, fit.gnss_drift
         )
         if table is not None and photos is not None:
             # The fit's table is superseded by the one after the adjustment, below.
@@ -165,7 +199,6 @@ def georeference_map(
         raise InputError(
             "no part of the reconstruction could be georeferenced: " + "; ".join(warnings)
         )
-    accuracy = position_accuracy(log, options.georef)
     if photos is None and accuracy is not None:
         results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
         if dropped:
@@ -173,10 +206,11 @@ def georeference_map(
     return MapGeorefResult(
         crs=f"EPSG:{epsg}",
         segments=results,
-        time_offset_s=offset_s,
+        time_offset_s=max(adjusted)[1] if adjusted and not hold_offset else offset_s,
         seconds=time.perf_counter() - start,
         warnings=warnings,
         photos=table,
+        adjusted_offset_s=max(adjusted)[1] if adjusted and not hold_offset else None,
     )
 
 
@@ -198,6 +232,9 @@ def _check_segments(
         if "rms_east" not in after:
             continue
         miss = check_stated_accuracy(after, accuracy, options)
+        refinement = entry.get("refinement") or {}
+        if refinement.get("kept") is False and miss is None:
+            miss = refinement["reason"]
         entry["stated_sigma_m"] = [round(float(v), 4) for v in accuracy]
         entry["within_stated_accuracy"] = miss is None
         rms_h = float(np.hypot(after["rms_east"], after["rms_north"]))

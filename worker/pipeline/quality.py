@@ -364,6 +364,7 @@ _OFFSET_SOURCES = {
 _OFFSET_REFINED = {
     "motion_correlation": "refined by the image motion",
     "trajectory_fit": "refined on the reconstructed trajectory",
+    "bundle_adjustment": "refined with the cameras against the log's positions",
 }
 
 

@@ -583,7 +583,12 @@ def georeference(
             for t, m in zip(image_set.image_times.tolist(), image_set.images, strict=True)
             if np.isfinite(t)
         }
-    fit = georeference_map(sparse, log, offset.offset_s, options.georef, photos)
+    hold = offset.method == OffsetMethod.user or offset.prior_source in kept
+    fit = georeference_map(sparse, log, offset.offset_s, options.georef, photos, hold_offset=hold)
+    if fit.adjusted_offset_s is not None:
+        offset.offset_s = fit.adjusted_offset_s
+        offset.method = OffsetMethod.bundle_adjustment
+        out["time_offset"] = offset.to_dict()
     sparse.save(work_dir / GEOREF_MAP)
     traj = sparse.trajectory()
     traj.crs = fit.crs

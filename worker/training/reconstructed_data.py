@@ -20,14 +20,14 @@ import json
 import os
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from worker.pipeline.atomic import write_text_atomic
-from worker.pipeline.coregister import CoregisterOptions, coregister
+from worker.pipeline.coregister import CoregisterOptions, CoregisterResult, coregister
 from worker.pipeline.raster_io import read_elevation, warp_elevation, write_geotiff
 from worker.pipeline.reconstruction import (
     ReconstructionInputs,
@@ -53,6 +53,8 @@ class RegistrationToTruth:
     nmad_before_m: float
     nmad_after_m: float
     valid_fraction: float  # cells of the truth grid with a reconstructed elevation
+    # The correction itself (shift, tilt), to move the DSM's own cells onto the truth.
+    correction: CoregisterResult | None = field(default=None, compare=False, repr=False)
 
     def check(self, pixel_size_m: float, what: str, max_nmad_px: float = MAX_NMAD_PX) -> None:
         """Raise ValueError when the registered DSM is too far from its truth to be used."""
@@ -98,6 +100,7 @@ def register_to_truth(dsm: Path, truth: Path, out: Path) -> RegistrationToTruth:
         nmad_before_m=result.nmad_before_m,
         nmad_after_m=result.nmad_after_m,
         valid_fraction=float(np.count_nonzero(np.isfinite(warped)) / warped.size),
+        correction=result,
     )
 
 

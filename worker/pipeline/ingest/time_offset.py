@@ -61,6 +61,7 @@ class OffsetMethod(StrEnum):
     prior = "prior"
     motion_correlation = "motion_correlation"
     trajectory_fit = "trajectory_fit"
+    bundle_adjustment = "bundle_adjustment"  # with the cameras, against RTK positions
     user = "user"
 
 

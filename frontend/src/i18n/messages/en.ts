@@ -414,6 +414,7 @@ export const messages = {
   "qualityText.offsetSource.user": "the offset given",
   "qualityText.offsetRefined.motion_correlation": ", refined by the image motion",
   "qualityText.offsetRefined.trajectory_fit": ", refined on the reconstructed trajectory",
+  "qualityText.offsetRefined.bundle_adjustment": ", refined with the cameras against the log's positions",
 
   "popup.title": "Detection {label}",
   "popup.withInterval": "{value} ({level}: {low}–{high})",

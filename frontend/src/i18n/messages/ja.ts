@@ -399,6 +399,7 @@ const messages: Messages = {
   "qualityText.offsetSource.user": "指定されたずれ",
   "qualityText.offsetRefined.motion_correlation": "（画像の動きで補正）",
   "qualityText.offsetRefined.trajectory_fit": "（復元した軌跡で補正）",
+  "qualityText.offsetRefined.bundle_adjustment": "（カメラと記録位置の同時調整で補正）",
 
   "popup.title": "検出 {label}",
   "popup.withInterval": "{value}（{level}：{low}–{high}）",
