@@ -307,6 +307,11 @@ def _against_truth(
         "real_time_factor_reconstruct": report["real_time_factor"],
         "real_time_factor_pipeline": round(results["reconstruct"]["video_seconds"] / wall, 3),
         "quality_passed": report["quality"]["passed"],
+        # The DSM's own noise check (quality.py `height_agreement`): None where not made.
+        "height_agreement_passed": next(
+            (c["passed"] for c in report["quality"]["checks"] if c["name"] == "height_agreement"),
+            None,
+        ),
         "warnings": report["warnings"],
     }
     try:

@@ -137,12 +137,14 @@ SILENT_MISS_PX = 3.0
 
 def silent_miss(record: dict[str, Any]) -> bool:
     """An RTK flight off by more than SILENT_MISS_PX whose segments all passed the check
-    against the log's stated accuracy: nothing in its report says it is off."""
+    against the log's stated accuracy and whose dense heights passed their agreement
+    check (or were not checked): nothing in its report says it is off."""
     slam = record.get("slam", {})
     nmad = slam.get("dsm_nmad_as_georeferenced_px")
     within = slam.get("georeference", {}).get("all_within_stated_accuracy")
+    noisy = slam.get("height_agreement_passed") is False
     rtk = record["conditions"].get("gnss") == "rtk"
-    return bool(rtk and nmad is not None and nmad > SILENT_MISS_PX and within)
+    return bool(rtk and nmad is not None and nmad > SILENT_MISS_PX and within and not noisy)
 
 
 def summarize_group(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -283,8 +285,9 @@ def table(summary: dict[str, Any]) -> str:
             lines.append(f"  quality verdict failed: seeds {_seeds(group['quality_failed'])}")
         if group.get("silent_misses"):
             lines.append(
-                f"  off by more than {SILENT_MISS_PX:g} px within the stated accuracy "
-                f"(not told): seeds {_seeds(group['silent_misses'])}"
+                f"  off by more than {SILENT_MISS_PX:g} px with nothing in the report "
+                f"(within the stated accuracy, heights agreeing): "
+                f"seeds {_seeds(group['silent_misses'])}"
             )
         sfm = group["sfm"]
         if sfm["runs"]:

@@ -133,7 +133,8 @@ class QualityCheckOut(BaseModel):
 
     name: str = Field(
         description="`georeference_accuracy`, `georeference_residual`, `overlap_coverage`, "
-        "`segments_dropped`, `photo_outliers`, `georeference_shape` or `time_offset`."
+        "`segments_dropped`, `photo_outliers`, `georeference_shape`, `height_agreement` or "
+        "`time_offset`."
     )
     value: float | None = Field(description="The survey's figure (metres, share or count).")
     bound: float | None = Field(description="The bound it is held to; None for a count.")

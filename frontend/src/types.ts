@@ -45,7 +45,7 @@ export interface SurveyQuality {
 
 /** One check of the verdict: the survey's figure, its bound and both in plain words. */
 export interface QualityCheck {
-  name: "georeference_accuracy" | "georeference_residual" | "overlap_coverage" | "segments_dropped" | "photo_outliers" | "georeference_shape" | "time_offset";
+  name: "georeference_accuracy" | "georeference_residual" | "overlap_coverage" | "segments_dropped" | "photo_outliers" | "georeference_shape" | "height_agreement" | "time_offset";
   value: number | null;
   bound: number | null;
   passed: boolean;

@@ -149,17 +149,22 @@ def test_summary_gives_median_p90_and_worst_never_the_best():
     # RTK flights beyond 3 px whose segments all claim the log's accuracy: not told.
     assert rtk["silent_misses"] == [4, 5, 6, 7, 8, 9, 10]
     assert summary["paper-mounds/standalone"]["silent_misses"] == []
-    assert "(not told): seeds 4, 5, 6, 7, 8, 9, 10" in text
+    told = "with nothing in the report (within the stated accuracy, heights agreeing)"
+    assert f"{told}: seeds 4, 5, 6, 7, 8, 9, 10" in text
 
 
 def test_a_miss_the_report_tells_is_not_silent():
     told = _record(3, "rtk", 9.0, 1.0, 0.9)
     told["slam"]["georeference"]["all_within_stated_accuracy"] = False
     told["slam"]["quality_passed"] = False
-    summary = flights_summary.summarize([told, _record(4, "rtk", 2.5, 1.0, 0.9)])
+    # Within the log's accuracy, but its dense heights disagree: the report says so too.
+    noisy = _record(5, "rtk", 9.0, 1.0, 0.9)
+    noisy["slam"]["height_agreement_passed"] = False
+    noisy["slam"]["quality_passed"] = False
+    summary = flights_summary.summarize([told, _record(4, "rtk", 2.5, 1.0, 0.9), noisy])
     group = summary["paper-mounds/rtk"]
-    assert group["silent_misses"] == [] and group["quality_failed"] == [3]
-    assert "quality verdict failed: seeds 3" in flights_summary.table(summary)
+    assert group["silent_misses"] == [] and group["quality_failed"] == [3, 5]
+    assert "quality verdict failed: seeds 3, 5" in flights_summary.table(summary)
 
 
 def test_one_tiny_flight_through_the_command(tmp_path):

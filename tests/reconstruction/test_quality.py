@@ -191,6 +191,25 @@ def test_a_photo_sets_scale_and_rotation_are_checked_against_two_dsm_cells():
     assert "georeference_shape" not in checks_by_name(no_cell)
 
 
+def test_dense_heights_that_disagree_by_more_than_three_cells_fail_the_verdict():
+    def dsm(agreement_m: float, cell_m: float = 0.05) -> dict:
+        figures = {"agreement_m": agreement_m, "cells": 5000, "points_used": 10**5}
+        return {"dsm": {"resolution_m": cell_m}, "height_agreement": figures}
+
+    at_bound = survey_quality(stages(segment(), dsm=dsm(0.15)))
+    check = checks_by_name(at_bound)["height_agreement"]
+    assert check["value"] == 0.15 and check["bound"] == 0.15 and check["passed"] is True
+    # A hillslope flown at 144 m with 16-m baselines: 2.2 m where the cells are 0.5 m.
+    past = survey_quality(stages(segment(), dsm=dsm(2.2, cell_m=0.5)))
+    check = checks_by_name(past)["height_agreement"]
+    assert check["passed"] is False and past["passed"] is False
+    assert "220.0 cm (1 sigma), 4.4 DSM cells, more than the 3 allowed" in check["message"]
+    assert check["message"] in failed_messages(past)
+    # Without dense points (no figure) the check is not made.
+    no_figure = survey_quality(stages(segment(), dsm={"dsm": {"resolution_m": 0.05}}))
+    assert "height_agreement" not in checks_by_name(no_figure)
+
+
 def test_report_carries_the_verdict_and_each_failed_check_among_its_warnings(tmp_path):
     geo = stages(segment(after=(6.0, 8.0)), warnings=["the time offset is uncertain"])
     (tmp_path / "georeference.json").write_text(json.dumps(geo["georeference"]))
@@ -254,6 +273,10 @@ def test_the_pages_english_words_of_every_check_are_the_servers_message():
     rtk_off = {"stated": RTK_SIGMA, "within": False}
     matched = {"ambiguous_reason": None, "prior_source": "srt", "method": "trajectory_fit"}
     unsure = {"ambiguous_reason": "two peaks 4.0 s apart", "prior_source": "log_start"}
+
+    def agree(metres: float) -> dict:
+        return {"agreement_m": metres, "cells": 5000, "points_used": 10**5}
+
     surveys = [
         stages(segment(stated=RTK_SIGMA, within=True)),
         stages(segment(0), segment(1, fit_residuals=(0.2, 0.0, 0.0), **rtk_off)),
@@ -269,6 +292,8 @@ def test_the_pages_english_words_of_every_check_are_the_servers_message():
         stages(shaped, dsm={"dsm": {"resolution_m": 0.05}}),
         stages(segment(), georeference={"time_offset": matched}),
         stages(segment(), georeference={"time_offset": unsure}),
+        stages(segment(), dsm={"dsm": {"resolution_m": 0.05}, "height_agreement": agree(0.1)}),
+        stages(segment(), dsm={"dsm": {"resolution_m": 0.05}, "height_agreement": agree(0.3)}),
     ]
     templates = _english_templates()
     keys = set()

@@ -23,6 +23,10 @@ not got, such as the stated accuracy of a stand-alone GPS log, is not made):
   camera farthest from the centre, against 2 cells of the DSM. Stand-alone GPS over a small
   site misses it (decimetre noise over tens of metres: centimetres at the edge); it says so
   rather than let the DSM's and the orthophoto's cell size promise more.
+- `height_agreement`: the dense heights of image pairs that share no frame agree, where
+  both measured a cell, to within 3 cells of the DSM (1 sigma; `height_agreement`). A
+  survey flown high with short baselines, or over canopy that matches badly, misses it:
+  its DSM's relief is noisier than its cells, however well it is georeferenced.
 - `time_offset`: a video's offset to its flight log could be tied down (the log's clock,
   its recording span, the video's creation time or the image motion); an ambiguous one
   (`time_offset.TimeOffset.ambiguous_reason`) fails, since positions matched to the wrong
@@ -67,6 +71,10 @@ class QualityBounds:
     # A map whose scale and rotation the positions fix only to more than this many DSM
     # cells at its edge places far features off by more than its own resolution shows.
     max_shape_error_cells: float = 2.0
+    # Heights that independent pairs measure this many DSM cells apart (1 sigma) or more:
+    # the relief is noisier than the cells show (the many-flight benchmark counts a DSM
+    # more than 3 cells off its truth as off).
+    max_height_disagreement_cells: float = 3.0
 
 
 def survey_quality(
@@ -84,6 +92,7 @@ def survey_quality(
         _segments_check(geo, segments) if geo else None,
         _photo_check(geo.get("photos"), bounds),
         _shape_check(segments, dsm, bounds),
+        _agreement_check(dsm, bounds),
         _time_offset_check(geo.get("time_offset")),
     ]
     checks = [c for c in found if c is not None]
@@ -351,6 +360,36 @@ def _shape_check(
         },
     )
     return _check("georeference_shape", error, bound, passed, message, text)
+
+
+def _agreement_check(dsm: dict[str, Any], bounds: QualityBounds) -> dict[str, Any] | None:
+    agreement = dsm.get("height_agreement")
+    cell = (dsm.get("dsm") or {}).get("resolution_m")
+    if not agreement or not cell:
+        return None  # no dense points, or a result from before the figure
+    value = agreement["agreement_m"]
+    bound = bounds.max_height_disagreement_cells * cell
+    passed = value <= bound
+    cells = value / cell
+    figures = {
+        "cm": f"{100 * value:.1f}",
+        "cells": f"{cells:.1f}",
+        "bound": f"{bounds.max_height_disagreement_cells:g}",
+    }
+    measured = (
+        f"Heights measured by image pairs that share no frame agree to {100 * value:.1f} cm "
+        f"(1 sigma), {cells:.1f} DSM cells"
+    )
+    if passed:
+        message = f"{measured}, within the {bounds.max_height_disagreement_cells:g} allowed."
+    else:
+        message = (
+            f"{measured}, more than the {bounds.max_height_disagreement_cells:g} allowed: the "
+            "DSM's relief is noisier than its cells, and height changes of that order cannot "
+            "be told from its noise (fly lower, or keep the frames further apart)."
+        )
+    text = ("agreement.within" if passed else "agreement.over", figures)
+    return _check("height_agreement", value, bound, passed, message, text)
 
 
 # How each source of the offset is told in a message.

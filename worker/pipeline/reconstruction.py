@@ -72,6 +72,7 @@ from worker.pipeline.frames import (
 )
 from worker.pipeline.georef import offset_residual_fn, survey_epsg
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
+from worker.pipeline.height_agreement import pair_agreement
 from worker.pipeline.ingest.arriving import Arrival
 from worker.pipeline.ingest.camera import CameraOverride, Intrinsics, resolve_intrinsics
 from worker.pipeline.ingest.flight_log import FlightLog
@@ -641,6 +642,12 @@ def dsm(
     n = n_dense
     if n_dense:
         sparse.dense_points(out=cloud[:n_dense])
+        # Before any filter: the points keep their pairs' order (see height_agreement).
+        agreement = pair_agreement(
+            cloud[:n_dense], sparse.dense_kf, sparse.dense_partner, resolution
+        )
+        if agreement is not None:
+            out["height_agreement"] = agreement
         if options.dense_sor:
             keep = statistical_outliers(cloud[:n])
             out["dense_sor_removed"] = int((~keep).sum())

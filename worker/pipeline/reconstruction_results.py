@@ -146,6 +146,8 @@ class DsmStageResult(ReconstructionStageResult):
     points_outside_footprint: int | None = field(default=None, metadata=_OPTIONAL)
     overlap_area_m2: float | None = field(default=None, metadata=_OPTIONAL)
     overlap_coverage: float | None = field(default=None, metadata=_OPTIONAL)
+    # with dense points: how well independent pairs' heights agree (height_agreement)
+    height_agreement: dict[str, Any] | None = field(default=None, metadata=_OPTIONAL)
     seconds: float
 
 
