@@ -187,23 +187,29 @@ def _dense_follow_depth(
     )
     ok = (depth_before > 0) & (depth_after > 0)
     ratio = np.ones(len(sparse.kf_t))
-    for k in kf.tolist():
-        sel = ok & (obs_kf == k)
-        if sel.sum() >= 10:
-            ratio[k] = float(np.median(depth_after[sel] / depth_before[sel]))
+    # Each keyframe's median ratio, by one sort rather than a mask per keyframe.
+    owner, values = obs_kf[ok], depth_after[ok] / depth_before[ok]
+    order = np.lexsort((values, owner))
+    owner, values = owner[order], values[order]
+    keys, start, count = np.unique(owner, return_index=True, return_counts=True)
+    enough = count >= 10
+    lower = values[start + (count - 1) // 2]
+    upper = values[start + count // 2]
+    ratio[keys[enough]] = (0.5 * (lower + upper))[enough]
     if sparse.dense_kf.size:
-        dense = np.isin(sparse.dense_kf, kf)
-        a, b = sparse.dense_kf[dense], sparse.dense_partner[dense]
+        # Dense points lie in runs of one pair: one factor per run (millions of points).
+        pair_kf, pair_partner = sparse.dense_kf, sparse.dense_partner
+        changes = (pair_kf[1:] != pair_kf[:-1]) | (pair_partner[1:] != pair_partner[:-1])
+        edges = np.flatnonzero(np.concatenate([[True], changes]))
+        a, b = pair_kf[edges], pair_partner[edges]
         baseline_before = np.linalg.norm(c_before[a] - c_before[b], axis=1)
         baseline_after = np.linalg.norm(after_c[a] - after_c[b], axis=1)
         # dense_points scales by (baseline now / baseline then): keep its old scale
         # times the keyframe's depth ratio.
-        sparse.dense_baseline[dense] = (
-            sparse.dense_baseline[dense]
-            * baseline_after
-            / np.maximum(baseline_before, 1e-12)
-            / ratio[a]
+        factor = np.where(
+            np.isin(a, kf), baseline_after / np.maximum(baseline_before, 1e-12) / ratio[a], 1.0
         )
+        sparse.dense_baseline *= np.repeat(factor, np.diff(np.append(edges, pair_kf.size)))
     return [round(float(v), 5) for v in np.percentile(ratio[kf], [10, 50, 90])]
 
 
