@@ -31,10 +31,14 @@ def north(t: np.ndarray, speed: float = 2.0, accel: float = 0.0) -> np.ndarray:
 
 
 def line_log(
-    seed: int, speed: float = 2.0, accel: float = 0.0, heading_bias_deg: float = 0.0
+    seed: int,
+    speed: float = 2.0,
+    accel: float = 0.0,
+    heading_bias_deg: float = 0.0,
+    attitude: bool = True,
 ) -> FlightLog:
     """The RTK log of the flight (centimetre noise), gimbal pointing down; the compass
-    heading off by `heading_bias_deg`."""
+    heading off by `heading_bias_deg`; without any attitude when not `attitude`."""
     rng = np.random.default_rng(seed)
     t = np.arange(-1.0, 13.0, 0.1)
     pos = np.column_stack([np.zeros(t.size), north(t, speed, accel), np.full(t.size, HEIGHT_M)])
@@ -55,6 +59,8 @@ def line_log(
         }
         for i in range(t.size)
     ]
+    if not attitude:
+        rows = [{k: v for k, v in row.items() if not k.startswith("gimbal")} for row in rows]
     return build_flight_log("flight.csv", "generic_csv", rows)
 
 

@@ -182,7 +182,8 @@ def test_time_offset_estimated_from_the_video(slam_run, survey):
     assert frames["time_offset"]["prior_source"] == "recording_flag"
     assert frames["time_offset_estimate"]["method"] == "motion_correlation"
     assert abs(frames["time_offset_estimate"]["offset_s"] - true_offset) < 0.15
-    assert geo["time_offset"]["method"] == "trajectory_fit"
+    # Refined with the cameras in the world-frame adjustment (georef_world).
+    assert geo["time_offset"]["method"] == "bundle_adjustment"
     assert abs(geo["time_offset"]["offset_s"] - true_offset) < 0.05
 
 

@@ -1,7 +1,8 @@
 """The adjustments of one straight flight line keep the rotation the attitude-aided fit
 gave it: the pose-prior bundle adjustment (worker/pipeline/georef_map.py
-`_refine_segment`, logs without a stated accuracy) and the world-frame adjustment
-(worker/pipeline/georef_world.py, RTK logs, where the logged tilt holds the roll).
+`_refine_segment`, `world_adjust=False`) and the world-frame adjustment
+(worker/pipeline/georef_world.py, the default, where the logged tilt holds the roll),
+with RTK positions and with positions that state no accuracy.
 
 Positions along a straight line say nothing of a roll about it, so COLMAP's alignment to
 the priors may turn the segment about the line; the undo must see that turn in the
@@ -17,19 +18,25 @@ from worker.pipeline.georef import GeorefOptions
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
 
 
-@pytest.mark.parametrize("stated", [None, RTK], ids=["pose-prior BA", "world adjustment"])
-def test_a_straight_line_keeps_its_roll_through_the_adjustment(stated):
+@pytest.mark.parametrize(
+    ("world", "stated"),
+    [(False, RTK), (True, RTK), (True, None)],
+    ids=["pose-prior BA", "world adjustment, RTK", "world adjustment, no stated accuracy"],
+)
+def test_a_straight_line_keeps_its_roll_through_the_adjustment(world, stated):
     for seed in (1, 2, 3):
         sparse, truth, _ = line_map(seed)
-        # Adjusted although straight (by default only where the log's attitude holds
-        # the roll, see the test below). Without a stated accuracy the pose-prior BA
-        # runs; with one, the world-frame adjustment (georef_world).
+        # Adjusted although straight (the pose-prior BA does not adjust straight lines by
+        # default, see the test below).
         options = MapGeorefOptions(
-            refine=True, refine_min_straightness=0.0, georef=GeorefOptions(position_sigma_m=stated)
+            refine=True,
+            refine_min_straightness=0.0,
+            world_adjust=world,
+            georef=GeorefOptions(position_sigma_m=stated),
         )
         result = georeference_map(sparse, line_log(seed), 0.0, options)
         refinement = result.segments[0]["refinement"]
-        assert refinement["priors_used"] > 0 if stated is None else refinement["kept"]
+        assert refinement["kept"] if world else refinement["priors_used"] > 0
         down = rotation_world_from_camera(np.zeros(12), -90.0, np.zeros(12))
         tilt = rotation_angle_deg(sparse.kf_r.transpose(0, 2, 1), down)
         assert tilt.max() < 0.5, (seed, tilt.max())
@@ -43,10 +50,10 @@ def test_a_straight_line_keeps_its_roll_through_the_adjustment(stated):
         assert np.percentile(np.abs(heights - np.median(heights)), 95) < 0.25
 
 
-def test_a_straight_line_is_not_adjusted_by_default_without_a_stated_accuracy():
+def test_a_straight_line_is_not_adjusted_by_the_pose_prior_ba():
     sparse, _, _ = line_map(1)
     before = sparse.point_xyz.copy()
-    result = georeference_map(sparse, line_log(1), 0.0, MapGeorefOptions())
+    result = georeference_map(sparse, line_log(1), 0.0, MapGeorefOptions(world_adjust=False))
     assert result.segments[0]["refinement"]["skipped"].startswith("a near-straight track")
     # The points moved by the fitted similarity alone: distances between them kept,
     # times its scale of 2.

@@ -56,6 +56,16 @@ def test_the_clock_offset_is_found_where_the_speed_changes(seed):
     assert result.adjusted_offset_s == result.time_offset_s
 
 
+def test_a_straight_line_without_a_logged_attitude_is_not_adjusted():
+    """Positions along a line hold no roll about it: without the log's attitude nothing
+    would, so the segment keeps its fit."""
+    sparse, _, _ = line_map(1)
+    log = line_log(1, attitude=False)
+    options = MapGeorefOptions(georef=GeorefOptions(position_sigma_m=RTK))
+    result = georeference_map(sparse, log, 0.0, options)
+    assert result.segments[0]["refinement"]["skipped"].startswith("a near-straight track")
+
+
 def test_an_offset_the_log_fixes_is_held():
     _, _, _, result = _run(1, refine=True, offset_s=0.15, hold_offset=True)
     assert result.time_offset_s == 0.15

@@ -14,11 +14,14 @@ the bending is kept. Frames follow their keyframes. The `paper4` method is appli
 the paper does, without refinement (its 4 x 4 is not a similarity, so the map is moved
 point by point).
 
-Where the log states its accuracy (RTK, or `GeorefOptions.position_sigma_m`), a video
-segment is instead adjusted in the world frame (`georef_world.adjust_segment`): priors
-on the positions at their stated sigmas, on the logged attitude and on the clock
-offset, nothing undone; its frames between keyframes are put on the log's positions.
-Straight segments are adjusted too where the log's attitude holds their roll.
+By default (`world_adjust`) a video segment is instead adjusted in the world frame
+(`georef_world.adjust_segment`): priors on the positions (at their stated sigmas where
+the log states them, RTK or `GeorefOptions.position_sigma_m`; else at the spread of the
+fit's residuals, its GNSS drift removed), on the logged attitude, which now holds the
+rotation the priors alone would tilt, and on the clock offset; nothing undone. With
+stated sigmas its frames between keyframes are put on the log's positions. Straight
+segments are adjusted too where the log's attitude holds their roll. The pose-prior
+adjustment above stays for photo sets and for `world_adjust=False`.
 
 Photo sets (`photos`: the photo name of each camera time) are fitted by the robust
 photo fit (`robust_fit.georeference_photos`): outlier photos are named, left out of the
@@ -72,6 +75,10 @@ class MapGeorefOptions:
     # Where the log states its accuracy (RTK), video segments are adjusted in the world
     # frame against the positions, the attitude and the offset instead (georef_world).
     world: WorldAdjustOptions = field(default_factory=WorldAdjustOptions)
+    # Video segments are adjusted in the world frame (georef_world): against positions at
+    # their stated sigmas (RTK) or at the spread of the fit's residuals (stand-alone GPS,
+    # its drift removed). False: the pose-prior adjustment with the similarity undone.
+    world_adjust: bool = True
 
 
 @dataclass
@@ -155,18 +162,22 @@ def georeference_map(
         if fit.similarity is not None:
             s = fit.similarity
             sparse.transform(s.scale, s.rotation, s.translation, segment)
-            if options.refine and photos is None and accuracy is not None:
+            if options.refine and photos is None and options.world_adjust:
+                sigma = accuracy
+                if sigma is None:
+                    sigma = _spread_sigma(sparse, segment, log, offset_s, epsg, fit, options)
                 entry["refinement"] = adjust_segment(
                     sparse,
                     segment,
                     log,
                     offset_s,
                     epsg,
-                    accuracy,
+                    sigma,
                     options.world,
                     hold_offset=hold_offset,
                     straight=fit.straightness < options.refine_min_straightness,
                     drift=fit.gnss_drift,
+                    frames_on_log=accuracy is not None,
                 )
                 segment_offset = entry["refinement"]["offset_s"]
                 if entry["refinement"].get("kept"):
@@ -331,15 +342,8 @@ def _refine_segment(
     kf_idx, world = kf_idx[keep], world[keep]
     if len(kf_idx) < 4:
         return {"skipped": "fewer than 4 keyframes with a GNSS position"}
-    # Prior sigmas: the spread of the keyframes' residuals after the fit (not inflated
-    # for correlation as in the fit: here the priors must be strong enough to pull out
-    # the reconstruction's drift; the similarity they would add is undone below).
-    d = sparse.kf_centres()[kf_idx] - world
-    nmad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    h = max(float(np.hypot(nmad[0], nmad[1]) / np.sqrt(2)), options.min_prior_sigma_m)
-    sig = np.array([h, h, max(float(nmad[2]), h)])
-    if options.prior_sigma_m is not None:
-        sig = np.asarray(options.prior_sigma_m, dtype=float)
+    # The similarity the priors would add is undone below.
+    sig = _residual_spread(sparse.kf_centres()[kf_idx] - world, options)
     origin = world.mean(axis=0)
     # Work around the origin: UTM coordinates are too large for a well-scaled problem.
     sparse.transform(1.0, np.eye(3), -origin, segment)
@@ -391,6 +395,34 @@ def _refine_segment(
     if not report.priors_used:
         out["skipped"] = "COLMAP could not align the segment to the priors (straight track?)"
     return out
+
+
+def _spread_sigma(
+    sparse: SparseMap,
+    segment: int,
+    log: FlightLog,
+    offset_s: float,
+    epsg: int,
+    fit: GeorefResult,
+    options: MapGeorefOptions,
+) -> np.ndarray:
+    """Prior sigmas (east, north, up) for positions that state none, from the keyframes'
+    residuals after the fit, less its GNSS drift (`_residual_spread`)."""
+    kf_idx, world = _keyframe_priors(sparse, segment, log, offset_s, epsg, fit.gnss_drift)
+    return _residual_spread(sparse.kf_centres()[kf_idx] - world, options)
+
+
+def _residual_spread(residuals: np.ndarray, options: MapGeorefOptions) -> np.ndarray:
+    """The robust spread (NMAD) of residuals (N, 3) as prior sigmas, at least
+    `min_prior_sigma_m` (or `prior_sigma_m` where given): not inflated for correlation
+    as in the fit, so that the priors are strong enough to pull out the
+    reconstruction's drift."""
+    if options.prior_sigma_m is not None:
+        return np.asarray(options.prior_sigma_m, dtype=float)
+    d = residuals
+    nmad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    h = max(float(np.hypot(nmad[0], nmad[1]) / np.sqrt(2)), options.min_prior_sigma_m)
+    return np.array([h, h, max(float(nmad[2]), h)])
 
 
 def _viewing_distance(sparse: SparseMap, seg_kf: np.ndarray, pt_sel: np.ndarray) -> float:

@@ -59,9 +59,12 @@ def adjust_segment(
     hold_offset: bool = False,
     straight: bool = False,
     drift: GnssDrift | None = None,
+    frames_on_log: bool = True,
 ) -> dict[str, Any]:
     """Adjust one segment of `sparse` (in place, in UTM) against the log; returns the
-    report kept in georeference.json (with `offset_s`, the offset the segment uses)."""
+    report kept in georeference.json (with `offset_s`, the offset the segment uses).
+    `frames_on_log`: put the frames between keyframes on the log's positions (where
+    those are better than the tracking between keyframes: RTK)."""
     kf = np.flatnonzero(sparse.kf_segment == segment)
     times = sparse.kf_t[kf]
     attitude, source = camera_attitude_at(log, times + offset_s)
@@ -154,7 +157,8 @@ def adjust_segment(
         sparse.point_xyz[pts] = moved
         report["points_triangulated_again"] = int((~ride).sum())
     report["points_outside_the_problem"] = int(others[0].size)
-    report["frames_on_log"] = _frames_on_log(sparse, segment, log, result.offset_s, epsg, drift)
+    if frames_on_log:
+        report["frames_on_log"] = _frames_on_log(sparse, segment, log, result.offset_s, epsg, drift)
     report["kept"] = True
     return report
 
