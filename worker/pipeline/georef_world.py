@@ -1,18 +1,21 @@
-"""The world-frame adjustment of one georeferenced segment whose log states its accuracy.
+"""The world-frame adjustment of one georeferenced video segment against its log.
 
-With RTK positions (a few centimetres) the similarity fit is not the end: the map's own
-drift (monocular scale drift, a bent line) is what remains, and the positions are good
-enough to remove it. `adjust_segment` runs `world_bundle_adjust` on the segment's
-keyframes and points in UTM with a prior on every keyframe's centre at the stated
-sigmas, on its rotation from the logged camera attitude, and on the offset between the
-video's clock and the log's, then writes the adjusted poses and points back (dense
-points follow their keyframes). Nothing of the adjustment is undone: the positions and
-the attitude fix every degree of freedom, the roll of a straight line included (which
-positions alone cannot: a straight segment without a logged attitude is not adjusted).
+The similarity fit is not the end: the map's own drift (monocular scale drift, a bent
+line) is what remains, and the positions can remove it. `adjust_segment` runs
+`world_bundle_adjust` on the segment's keyframes and points in UTM with a prior on every
+keyframe's centre (at the log's stated sigmas, RTK; else at the spread of the fit's
+residuals, the fitted GNSS drift removed from the positions), on its rotation from the
+logged camera attitude, and on the offset between the video's clock and the log's, then
+writes the adjusted poses and points back (dense points follow their keyframes'
+depths). Nothing of the adjustment is undone: the positions and the attitude fix every
+degree of freedom, the roll of a straight line included (which positions alone cannot:
+a straight segment without a logged attitude is not adjusted), and the attitude keeps a
+stand-alone GPS's height drift from tilting a small site.
 
 Measured on a 12-s RTK line over the hillslope at 144 m (seed 20 of the many-flight
 benchmark): the offset went from 69.096 s (the trajectory fit, misled by the map's
-drift) to 69.006 s (the truth 69.000 s), the camera centres to 5 cm of their log.
+drift) to 69.007 s (the truth 68.998 s), the camera centres to 5 cm of their log.
+docs/reconstruction.md gives the many-flight figures, RTK and stand-alone.
 """
 
 from __future__ import annotations
