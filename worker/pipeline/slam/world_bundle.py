@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.spatial.transform import Rotation
 
 # Log positions (K, 3) and velocities (K, 3) at the keyframes' times for an offset.
 PositionsAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -79,26 +80,6 @@ def _hat(v: np.ndarray) -> np.ndarray:
         ],
         1,
     )
-
-
-def _exp(w: np.ndarray) -> np.ndarray:
-    """Rodrigues: (N, 3) rotation vectors -> (N, 3, 3)."""
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-12
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
-    h = _hat(w)
-    return np.eye(3) + a[:, None, None] * h + b[:, None, None] * (h @ h)
-
-
-def _log(r: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations -> (N, 3) rotation vectors (angles below pi)."""
-    cos = np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    theta = np.arccos(cos)
-    v = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], 1)
-    s = np.where(theta < 1e-9, 0.5, theta / (2 * np.sin(np.maximum(theta, 1e-9))))
-    return v * s[:, None]
 
 
 def _cauchy_weights(r2: np.ndarray, scale: float) -> np.ndarray:
@@ -150,7 +131,8 @@ class _Terms:
         # Attitude: world-frame rotation error of camera-to-world, weighted in ENU.
         if pb.attitude_r_wc is not None:
             r_wc = np.transpose(r_cw, (0, 2, 1))
-            self.res_att = _log(r_wc @ np.transpose(pb.attitude_r_wc, (0, 2, 1)))
+            rel = r_wc @ np.transpose(pb.attitude_r_wc, (0, 2, 1))
+            self.res_att = Rotation.from_matrix(rel).as_rotvec()
             sig_att = np.deg2rad([pb.tilt_sigma_deg, pb.tilt_sigma_deg, pb.heading_sigma_deg])
             self.res_att = self.res_att / sig_att
             self.att_sigma = sig_att
@@ -268,7 +250,7 @@ def world_bundle_adjust(
                 lam *= 10
                 continue
             step = dc[: 6 * n_kf].reshape(n_kf, 6)
-            new_r = r_cw @ np.transpose(_exp(step[:, :3]), (0, 2, 1))
+            new_r = r_cw @ np.transpose(Rotation.from_rotvec(step[:, :3]).as_matrix(), (0, 2, 1))
             new_c = centres + step[:, 3:]
             new_p = points + dp.reshape(n_pt, 3)
             new_off = offset + (dc[-1] if pb.offset_sigma_s is not None else 0.0)
