@@ -135,3 +135,26 @@ def test_dense_points_keep_the_depths_of_the_map_not_the_noise_of_the_baselines(
     assert result.segments[0]["refinement"]["kept"]
     heights = sparse.dense_points()[:, 2] - ORIGIN[2] - expected[:, 2]
     assert np.percentile(np.abs(heights), 90) < 0.15, np.percentile(np.abs(heights), 90)
+
+
+def test_a_singular_step_is_damped_more_without_a_warning_in_the_log(monkeypatch):
+    import warnings
+
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from worker.pipeline.slam import world_bundle
+
+    def singular(matrix, rhs):  # what SciPy does on an exactly singular matrix
+        warnings.warn("Matrix is exactly singular", spla.MatrixRankWarning, stacklevel=2)
+        return np.full(len(rhs), np.nan)
+
+    monkeypatch.setattr(world_bundle.spla, "spsolve", singular)
+    hpp = np.repeat(np.eye(3)[None], 2, axis=0)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with pytest.raises(np.linalg.LinAlgError, match="singular"):
+            world_bundle._solve(
+                np.eye(7), np.zeros(7), hpp, np.zeros(6), sp.csr_matrix((7, 6)), 1e-4
+            )
+    assert not seen

@@ -25,6 +25,7 @@ in, plain arrays out.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -217,7 +218,14 @@ def _solve(H, g, hpp, gp, hcp, lam: float):
     damped = sp.csr_matrix(H + np.diag(lam * np.diag(H) + 1e-9))
     S = (damped - hcp_w @ hcp.T).tocsc()
     rhs = -g + hcp_w @ gp
-    dc = spla.spsolve(S, rhs)
+    # A singular system (a step too little damped) is answered by more damping, so
+    # SciPy's warning about it is not passed on to the job's log.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", spla.MatrixRankWarning)
+        try:
+            dc = spla.spsolve(S, rhs)
+        except spla.MatrixRankWarning as exc:
+            raise np.linalg.LinAlgError("singular reduced camera system") from exc
     if not np.isfinite(dc).all():
         raise np.linalg.LinAlgError("singular reduced camera system")
     dp = -(winv @ (gp + hcp.T @ dc))
