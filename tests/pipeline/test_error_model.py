@@ -1,9 +1,14 @@
 """The error model of a DSM difference: sigma(slope), its correlation, and the coverage
 of the per-pixel LoD and of a polygon's 95 % intervals over seeded trials."""
 
+import json
+
 import numpy as np
 import pytest
+from rasterio.warp import transform as transform_points
 from scipy import ndimage
+from shapely.geometry import Point
+from shapely.geometry import shape as to_shape
 
 from tests.pipeline.change_rasters import change_rasters
 from worker.pipeline.change_regions import (
@@ -14,6 +19,7 @@ from worker.pipeline.change_regions import (
     min_area_m2,
     significant_regions,
 )
+from worker.pipeline.difference import ERROR_MODEL_FILE, LOD_FILE
 from worker.pipeline.error_model import (
     LOD_Z,
     ErrorModelOptions,
@@ -21,6 +27,8 @@ from worker.pipeline.error_model import (
     fit_error_model,
     terrain_attributes,
 )
+from worker.pipeline.raster_io import write_geotiff
+from worker.pipeline.vectorize import VectorizeOptions, vectorize
 
 PIXEL = 0.5
 
@@ -251,3 +259,51 @@ def test_change_over_much_of_the_steep_ground_does_not_inflate_its_sigma():
     again = steep_ratio(ErrorModelOptions())
     assert once > 1.1, once  # the pits' flanks inflate the steep bins
     assert 0.95 <= again <= 1.06, again
+
+
+def _write_change(folder, rasters: ChangeRasters) -> tuple:
+    """The difference stage's files for `rasters`: dh, significance, lod, error model."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_geotiff(folder / "dh.tif", rasters.dh, rasters.transform, rasters.crs)
+    write_geotiff(folder / "significance.tif", rasters.significance, rasters.transform, rasters.crs)
+    write_geotiff(folder / LOD_FILE, rasters.lod, rasters.transform, rasters.crs)
+    (folder / ERROR_MODEL_FILE).write_text(json.dumps(rasters.model.to_dict()))
+    return folder / "dh.tif", folder / "significance.tif"
+
+
+def test_correlated_error_past_the_pixel_lod_is_dropped_by_its_volume(tmp_path):
+    """Errors correlated at two scales (3 and 40 pixels) leave patches of pixels just past
+    their LoD whose volume is within 3 standard errors of zero; a 0.5 m loss of 120 m2
+    (2.5 LoD) is kept in every trial."""
+    dropped = chance = 0
+    for seed in range(12):
+        rng = np.random.default_rng(300 + seed)
+        shape = (300, 300)
+        dh = 0.1 * (
+            0.4 * rng.normal(size=shape)
+            + 0.5 * _correlated(rng, shape, 3)
+            + 0.8 * _correlated(rng, shape, 40)
+        )
+        dh[100:124, 140:160] -= 0.5
+        dh = dh.astype(np.float32)
+        flat = np.zeros(shape, np.float32)
+        model, _ = fit_error_model(dh, flat, flat, PIXEL)
+        lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
+        rasters = change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
+        dh_path, sig_path = _write_change(tmp_path / f"seed{seed}", rasters)
+        x, y = rasters.transform * (150, 112)
+        centre = Point(*(c[0] for c in transform_points(rasters.crs, "EPSG:4326", [x], [y])))
+        out = tmp_path / f"seed{seed}" / "detections.geojson"
+        counts = {}
+        for test in (3.0, None):
+            vectorize(dh_path, sig_path, out, VectorizeOptions(min_volume_z=test))
+            features = json.loads(out.read_text())["features"]
+            slide = [f for f in features if to_shape(f["geometry"]).contains(centre)]
+            assert len(slide) == 1, f"seed {seed}: the planted loss was not kept"
+            low, high = slide[0]["properties"]["uncertainty"]["volume_loss_m3_ci95"]
+            assert low <= 0.5 * 120 <= high
+            counts[test] = len(features) - 1
+        chance += counts[None]
+        dropped += counts[None] - counts[3.0]
+    assert chance >= 20  # the pixel LoD alone passes patches of such errors
+    assert dropped >= chance / 3  # 16 of 42 when written

@@ -78,13 +78,18 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 
 
 # Benchmark-only variants of a method: the simple baseline the default must never be
-# worse than is the LoD method with one NMAD for the whole raster; "threshold-nofloor"
-# is the per-pixel LoD alone (what the default's floor at the baseline's LoD costs),
-# "threshold-noflanks" the floor without the flanks that join significant change.
+# worse than is the LoD method with one NMAD for the whole raster and no volume test;
+# "threshold-nofloor" is the per-pixel LoD alone (what the default's floor at the
+# baseline's LoD costs), "threshold-noflanks" the floor without the flanks that join
+# significant change, "threshold-novolume" the default without its volume test.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "threshold-uniform": ("threshold", {"difference": {"error_model": "uniform"}}),
+    "threshold-uniform": (
+        "threshold",
+        {"difference": {"error_model": "uniform"}, "vectorize": {"min_volume_z": None}},
+    ),
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
     "threshold-noflanks": ("threshold", {"difference": {"flank_area_z": None}}),
+    "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),
 }
 
 

@@ -330,8 +330,9 @@ def describe_region(
     gainy = finite & (dh > 0)
     volume_loss = float(-dh[lossy].sum() * pa)
     volume_gain = float(dh[gainy].sum() * pa)
-    loss_half = 1.96 * _volume_sigma(rasters.model, lod[lossy] / LOD_Z, pa)
-    gain_half = 1.96 * _volume_sigma(rasters.model, lod[gainy] / LOD_Z, pa)
+    loss_sigma = _volume_sigma(rasters.model, lod[lossy] / LOD_Z, pa)
+    gain_sigma = _volume_sigma(rasters.model, lod[gainy] / LOD_Z, pa)
+    loss_half, gain_half = 1.96 * loss_sigma, 1.96 * gain_sigma
 
     eroded = ndimage.binary_erosion(inside, structure=np.ones((3, 3), bool))
     near = ndimage.binary_dilation(inside, structure=np.ones((3, 3), bool), iterations=2)
@@ -376,6 +377,10 @@ def describe_region(
         "downslope_alignment": _downslope_alignment(rasters, win, dh, significant),
         "edge_contrast": _edge_contrast(inside, dh, lod),
         "compactness": float(4 * math.pi * area / max(geometry.length, 1e-9) ** 2),
+        "volume_z": max(
+            volume_loss / loss_sigma if loss_sigma > 0 else 0.0,
+            volume_gain / gain_sigma if gain_sigma > 0 else 0.0,
+        ),
     }
     properties = {
         "area_m2": round(area, 2),

@@ -4,9 +4,11 @@ The significant pixels of the difference stage (beyond their per-pixel LoD95), l
 gain together since a landslide is depletion and deposition side by side, are cleaned
 (an opening removes speckle, a closing bridges gaps) and grouped 8-connected; regions
 smaller than the minimum area (from the errors' correlation length unless fixed, see
-change_regions.RegionOptions) are dropped. Regions that are tall objects appearing or
-vanishing with no ground motion around them (trees, buildings) are set aside as surface
-changes and counted, not reported as landslides. Polygons follow pixel edges in the
+change_regions.RegionOptions) are dropped, and so are regions whose loss and gain
+volumes are both within `min_volume_z` standard errors of zero under the fitted
+variogram (a patch of correlated error that passed the pixel LoD). Regions that are
+tall objects appearing or vanishing with no ground motion around them (trees, buildings)
+are set aside as surface changes and counted, not reported as landslides. Polygons follow pixel edges in the
 metric CRS, where areas are measured, and are written in WGS84 lon/lat with their
 95 % intervals (change_regions.py).
 
@@ -24,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from worker.pipeline.change_regions import (
+    SURFACE_CHANGE,
     Region,
     RegionOptions,
     describe_region,
@@ -45,7 +48,13 @@ METHODS = ("threshold",)
 
 @dataclass
 class VectorizeOptions(RegionOptions):
-    pass
+    # A landslide region's loss or gain volume must reach this many standard errors of
+    # that volume (its errors correlated as the variogram says): a patch of correlated
+    # error that passed the pixel LoD is about one correlation area of pixels just past
+    # it, 1.5-3 standard errors as a volume. 3: the largest value that lost no slide on
+    # the training seeds 0-11 of the seven pair generators (docs/significance.md), where
+    # 3.25 lost one and 4 three. None: no volume test.
+    min_volume_z: float | None = 3.0
 
 
 @dataclass
@@ -89,7 +98,9 @@ def vectorize(
         describe_region(rasters, labels, label, window, options)
         for label, window in zip(keep, windows, strict=True)
     ]
-    landslides, surface = split_surface_changes(regions, options)
+    landslides, surface = split_surface_changes(
+        [r for r in regions if _volume_significant(r, options)], options
+    )
     progress(0.9)
     detections = [region_detection(r, rasters.crs, _score(r, smallest), method) for r in landslides]
     collection = write_detections(out_geojson, detections, rasters.crs)
@@ -114,6 +125,13 @@ def detection_totals(collection: dict[str, Any], surface: list[Region]) -> dict[
         "surface_changes": len(surface),
         "surface_change_area_m2": round(float(sum(r.geometry.area for r in surface)), 2),
     }
+
+
+def _volume_significant(region: Region, options: VectorizeOptions) -> bool:
+    """Surface changes are judged by the object rule; landslides by their volume too."""
+    if region.kind == SURFACE_CHANGE or options.min_volume_z is None:
+        return True
+    return region.traits["volume_z"] >= options.min_volume_z
 
 
 def _score(region: Region, smallest_m2: float) -> float:
