@@ -36,11 +36,13 @@ def line_log(
     accel: float = 0.0,
     heading_bias_deg: float = 0.0,
     attitude: bool = True,
+    end_s: float = 12.9,
 ) -> FlightLog:
-    """The RTK log of the flight (centimetre noise), gimbal pointing down; the compass
-    heading off by `heading_bias_deg`; without any attitude when not `attitude`."""
+    """The RTK log of the flight (centimetre noise) from -1 s to `end_s`, gimbal pointing
+    down; the compass heading off by `heading_bias_deg`; without any attitude when not
+    `attitude`."""
     rng = np.random.default_rng(seed)
-    t = np.arange(-1.0, 13.0, 0.1)
+    t = np.round(np.arange(-1.0, end_s + 0.05, 0.1), 6)
     pos = np.column_stack([np.zeros(t.size), north(t, speed, accel), np.full(t.size, HEIGHT_M)])
     pos = pos + ORIGIN + rng.normal(0, 1.0, pos.shape) * RTK
     lon, lat = Transformer.from_crs(f"EPSG:{EPSG}", "EPSG:4326", always_xy=True).transform(

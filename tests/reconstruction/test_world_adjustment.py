@@ -46,6 +46,17 @@ def test_scale_drift_is_removed_against_rtk_positions(seed):
     assert np.sqrt((fit_error**2).mean()) > 0.15
 
 
+def test_a_log_that_ends_at_the_last_keyframe_still_adjusts_the_segment():
+    """The last keyframe at the log's last sample has no position a step later: its
+    velocity is taken one-sided, not left undefined (which stopped every step)."""
+    log = line_log(1, speed=SPEED, accel=ACCEL, heading_bias_deg=3.0, end_s=11.0)
+    sparse, _, centres, result = _run(1, refine=True, log=log)
+    refinement = result.segments[0]["refinement"]
+    assert refinement["kept"] and refinement["final_cost"] < refinement["initial_cost"]
+    camera_error = np.linalg.norm(sparse.kf_centres() - ORIGIN - centres, axis=1)
+    assert np.sqrt((camera_error**2).mean()) < 0.06
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_clock_offset_is_found_where_the_speed_changes(seed):
     _, _, _, result = _run(seed, refine=True, offset_s=0.15, hold_offset=False)

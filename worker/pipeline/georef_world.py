@@ -86,15 +86,22 @@ def adjust_segment(
     kf_index[kf] = np.arange(kf.size)
     step = options.velocity_step_s
 
+    span = log.t[log.valid]
+    first, last = (float(span.min()), float(span.max())) if span.size else (0.0, 0.0)
+
     def positions_at(offset: float) -> tuple[np.ndarray, np.ndarray]:
         def at(t: np.ndarray) -> np.ndarray:
             values = log.interpolate(t)
             world = log_to_utm(values["lon"], values["lat"], values["alt"], epsg)
             return world if drift is None else world - drift.at(times)
 
-        return at(times + offset), (at(times + offset + step) - at(times + offset - step)) / (
-            2 * step
-        )
+        # The velocity by a central difference, one-sided at the ends of the log (a
+        # keyframe at its last sample has no position a step later).
+        t = times + offset
+        before, after = np.clip(t - step, first, last), np.clip(t + step, first, last)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            velocity = (at(after) - at(before)) / (after - before)[:, None]
+        return at(t), velocity
 
     problem = WorldBAProblem(
         k=sparse.k,
@@ -127,6 +134,11 @@ def adjust_segment(
     result = world_bundle_adjust(problem, max_iterations=options.max_iterations)
     report = dict(result.report)
     report["attitude_source"] = str(source) if attitude is not None else "none"
+    if not report["final_cost"] < report["initial_cost"]:
+        report["kept"] = False
+        report["reason"] = "no step of the adjustment lowered its cost: the segment keeps its fit"
+        report["offset_s"] = offset_s
+        return report
     before = report["reprojection_rms_px_before"]
     after = report["reprojection_rms_px_after"]
     if not after <= max(options.max_reprojection_rms_px, 2 * before):

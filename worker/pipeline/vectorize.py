@@ -8,9 +8,9 @@ change_regions.RegionOptions) are dropped, and so are regions whose loss and gai
 volumes are both within `min_volume_z` standard errors of zero under the fitted
 variogram (a patch of correlated error that passed the pixel LoD). Regions that are
 tall objects appearing or vanishing with no ground motion around them (trees, buildings)
-are set aside as surface changes and counted, not reported as landslides. Polygons follow pixel edges in the
-metric CRS, where areas are measured, and are written in WGS84 lon/lat with their
-95 % intervals (change_regions.py).
+are set aside as surface changes and counted, not reported as landslides. Polygons
+follow pixel edges in the metric CRS, where areas are measured, and are written in WGS84
+lon/lat with their 95 % intervals (change_regions.py).
 
 score (0-1) is a confidence: magnitude * size, where magnitude = 1 - exp(-(m - 1)) with
 m the region's mean |dh| in multiples of its LoD (0 at the LoD, 0.86 at 3 LoD), and

@@ -35,7 +35,8 @@ METHOD = DetectionMethod(
     name="threshold",
     summary="The LoD method: every change beyond its per-pixel level of detection "
     "(LoD95 from slope and curvature, never below the raster's one-NMAD LoD), larger than "
-    "the errors' correlation or, if smaller, twice its LoD.",
+    "the errors' correlation or, if smaller, twice its LoD, and with a loss or gain volume "
+    "3 standard errors clear of zero.",
     stage=StageSpec(
         name="vectorize",
         run=run_vectorize,

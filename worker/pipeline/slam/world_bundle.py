@@ -124,7 +124,9 @@ class _Terms:
         self.has_pos = np.isfinite(pos).all(1)
         sig = np.asarray(pb.position_sigma_m, dtype=float)
         self.res_pos = np.where(self.has_pos[:, None], (centres - pos) / sig, 0.0)
-        self.j_pos_offset = np.where(self.has_pos[:, None], -vel / sig, 0.0)  # d/d offset
+        # d/d offset; none where the log gives no velocity.
+        moving = self.has_pos & np.isfinite(vel).all(1)
+        self.j_pos_offset = np.where(moving[:, None], -vel / sig, 0.0)
         self.pos_sigma = sig
         r2p = (self.res_pos**2).sum(1)
         self.w_pos = np.where(self.has_pos, _cauchy_weights(r2p, pb.prior_scale), 0.0)
