@@ -93,12 +93,14 @@ LOD_MIN_AREA_PX = 625  # 25 m2 at 20 cm, the platform's default minimum area
 
 def lod_options(pixel_size_m: float, error_model: str = "heteroscedastic") -> ComparisonOptions:
     """The threshold method as this protocol runs it: its per-pixel error model (the
-    default) or one NMAD for the raster ("uniform", the baseline), the minimum area
-    scaled with the pixel size."""
+    default) or one NMAD for the raster and no volume test ("uniform", the baseline, as
+    the generator benchmark runs it), the minimum area scaled with the pixel size."""
     options = ComparisonOptions.from_dict(
         {"method": "threshold", "difference": {"error_model": error_model}}
     )
     options.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
+    if error_model == "uniform":
+        options.detection.min_volume_z = None
     return options
 
 

@@ -44,7 +44,7 @@ def run_detect(context: ComparisonContext, progress: ProgressFn) -> Any:
 METHOD = DetectionMethod(
     name="cnn",
     summary="SlideNet, a neural network on both DSMs, trained on simulated survey flights; on "
-    "independent generators it found 1 of 43 slides (docs/significance.md).",
+    "independent generators it found 1 of 45 slides (docs/significance.md).",
     stage=StageSpec(
         name="detect",
         run=run_detect,
