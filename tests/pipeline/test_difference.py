@@ -48,6 +48,7 @@ def test_uniform_lod95_is_1_96_times_nmad_and_significance_is_coded(tmp_path):
     with rasterio.open(tmp_path / "sig.tif") as src:
         sig = src.read(1)
         assert src.nodata == 255 and src.tags()["LOD_M"] == repr(result.lod_m)
+        assert "BASELINE_LOD_M" not in src.tags()  # the uniform LoD is the baseline
     assert np.all(sig[20:40, 20:40] == 1) and np.all(sig[100:120, 150:170] == 2)
     assert np.all(sig[180:, 180:] == 255)
     noise = sig[50:90, 50:140]
@@ -70,6 +71,10 @@ def test_heteroscedastic_lod_on_uniform_noise_matches_the_nmad(tmp_path):
     noise = sig[50:90, 50:140]
     assert 0.02 < np.count_nonzero(noise) / noise.size < 0.08
     assert json.loads((tmp_path / "error_model.json").read_text())["stable_pixels"] > 30_000
+    # The baseline's own test travels with the mask, for its regions to be judged.
+    tags = rasterio.open(tmp_path / "sig.tif").tags()
+    assert float(tags["BASELINE_LOD_M"]) == pytest.approx(result.lod95_m)
+    assert float(tags["BASELINE_MEDIAN_M"]) == pytest.approx(result.median_dh_m, abs=0.01)
 
 
 def test_floor_and_fixed_lod(tmp_path):

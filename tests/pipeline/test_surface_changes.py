@@ -18,6 +18,7 @@ from worker.pipeline.change_regions import (
     Region,
     RegionOptions,
     describe_region,
+    judge_by_baseline,
     label_regions,
     significant_regions,
     split_surface_changes,
@@ -144,3 +145,43 @@ def test_trees_a_debris_flow_took_are_part_of_it_and_other_tree_change_is_not():
     # Without the context only the channel is a landslide.
     alone, _ = split_surface_changes(regions, RegionOptions(object_context_m=0.0))
     assert len(alone) == 1
+
+
+def _judged(rasters: ChangeRasters, options: RegionOptions) -> tuple[list[str], list[str]]:
+    """Kinds of the regions before and after they are judged on the baseline's regions."""
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    regions = [
+        describe_region(rasters, labels, k, w, options) for k, w in zip(keep, windows, strict=True)
+    ]
+    judged = judge_by_baseline(rasters, labels, keep, windows, regions, options)
+    return [r.kind for r in regions], [r.kind for r in judged]
+
+
+def test_a_region_the_baseline_sets_aside_as_trees_is_set_aside():
+    """A clump of trees gone in the post survey, beside a strip of ground that one survey
+    got wrong: the per-pixel LoD (high on the canopy's rough ground) keeps only the
+    clump's edge, which with the strip reads as ground motion; the baseline's region
+    takes in the whole clump and is trees lost with little ground moved around them."""
+    rng = np.random.default_rng(5)
+    pre = rng.normal(0.0, SIGMA, SHAPE)
+    post = rng.normal(0.0, SIGMA, SHAPE)
+    pre[40:60, 40:60] += 15.0
+    post[40:60, 60:63] -= 0.6
+    rasters = _rasters(pre, post)
+    rasters.lod = rasters.lod.copy()
+    rasters.lod[40:60, 40:58] = 30.0
+    rasters.significance[40:60, 40:58] = 0  # NO_CHANGE under the canopy's LoD
+    options = RegionOptions()
+    assert _judged(rasters, options)[0] == [LANDSLIDE]  # judged alone
+    rasters.baseline = (0.0, LOD_Z * SIGMA)  # median, LoD95 of one NMAD
+    assert _judged(rasters, options)[1] == [SURFACE_CHANGE]
+
+
+def test_a_forested_slide_stays_a_landslide_when_judged_on_the_baseline():
+    options = RegionOptions()
+    for seed in range(3):
+        rasters, _ = _forest_pair(seed)
+        rasters.baseline = (0.0, LOD_Z * SIGMA)
+        before, after = _judged(rasters, options)
+        assert before == after, f"seed {seed}"
+        assert LANDSLIDE in after

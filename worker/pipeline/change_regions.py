@@ -43,6 +43,8 @@ from shapely.geometry import shape as to_shape
 from worker.pipeline.binned import binned_mean
 from worker.pipeline.detection_record import DetectionProperties, Uncertainty
 from worker.pipeline.difference import (
+    BASELINE_LOD_TAG,
+    BASELINE_MEDIAN_TAG,
     ERROR_MODEL_FILE,
     GAIN,
     LOD_FILE,
@@ -109,6 +111,9 @@ class ChangeRasters:
     model: ErrorModel
     pre: np.ndarray | None = None
     post: np.ndarray | None = None
+    # The simple baseline's median and LoD95 (m) where the difference stage floored the
+    # per-pixel LoD at it; None otherwise.
+    baseline: tuple[float, float] | None = None
     _objects: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
@@ -179,6 +184,9 @@ def load_change_rasters(
             stable_pixels=0,
             variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
         )
+    baseline = None
+    if tags.get(BASELINE_MEDIAN_TAG) and tags.get(BASELINE_LOD_TAG):
+        baseline = (float(tags[BASELINE_MEDIAN_TAG]), float(tags[BASELINE_LOD_TAG]))
     rasters = ChangeRasters(
         dh=(dh - np.float32(model.median_dh_m)).astype(np.float32),
         lod=lod,
@@ -186,6 +194,7 @@ def load_change_rasters(
         transform=profile["transform"],
         crs=profile["crs"],
         model=model,
+        baseline=baseline,
     )
     if pre_path is not None and post_path is not None:
         rasters.pre, _ = read_elevation(pre_path)
@@ -290,6 +299,82 @@ def split_surface_changes(
         [r for r in regions if r.kind != SURFACE_CHANGE],
         [r for r in regions if r.kind == SURFACE_CHANGE],
     )
+
+
+def judge_by_baseline(
+    rasters: ChangeRasters,
+    labels: np.ndarray,
+    keep: list[int],
+    windows: list[tuple[slice, slice]],
+    regions: list[Region],
+    options: RegionOptions,
+) -> list[Region]:
+    """`regions` (described, in `keep` order), where a landslide region lying in a region
+    of the simple baseline that the object rule sets aside becomes a surface change.
+
+    The default's significant pixels are a subset of the baseline's, so its regions are
+    smaller: under canopy a region of a few crowns seen in one survey and not the other
+    keeps some ground pixels past the LoD and reads as ground motion, where the
+    baseline's region around it takes in the trees and is set aside. Judged on the
+    baseline's region, the default sets aside whatever the baseline does.
+    """
+    if rasters.baseline is None or rasters.pre is None or rasters.post is None:
+        return regions
+    if all(r.kind == SURFACE_CHANGE for r in regions):
+        return regions
+    median, lod95 = rasters.baseline
+    with np.errstate(invalid="ignore"):
+        centred = rasters.dh + np.float32(rasters.model.median_dh_m - median)
+        changed = np.abs(centred) > np.float32(lod95)
+    base_labels, _ = ndimage.label(
+        clean_mask(changed, options), structure=np.ones((3, 3), dtype=bool)
+    )
+    del changed
+    base_windows = ndimage.find_objects(base_labels)
+    kinds: dict[int, str] = {}
+    out = []
+    for region, label, window in zip(regions, keep, windows, strict=True):
+        if region.kind == SURFACE_CHANGE:
+            out.append(region)
+            continue
+        under = base_labels[window][labels[window] == label]
+        under = under[under > 0]
+        if not under.size:
+            out.append(region)
+            continue
+        base = int(np.bincount(under).argmax())
+        if base not in kinds:
+            kinds[base] = _baseline_kind(
+                rasters, base_labels, base, base_windows[base - 1], centred, lod95, options
+            )
+        out.append(
+            replace(region, kind=SURFACE_CHANGE) if kinds[base] == SURFACE_CHANGE else region
+        )
+    return out
+
+
+def _baseline_kind(
+    rasters: ChangeRasters,
+    base_labels: np.ndarray,
+    base: int,
+    window: tuple[slice, slice],
+    centred: np.ndarray,
+    lod95: float,
+    options: RegionOptions,
+) -> str:
+    """The object rule's verdict on one region of the baseline (its one LoD everywhere)."""
+    pad = 4
+    rows, cols = window
+    win = (
+        slice(max(rows.start - pad, 0), min(rows.stop + pad, base_labels.shape[0])),
+        slice(max(cols.start - pad, 0), min(cols.stop + pad, base_labels.shape[1])),
+    )
+    inside = base_labels[win] == base
+    dh = centred[win]
+    lod = np.full(dh.shape, np.float32(lod95))
+    with np.errstate(invalid="ignore"):
+        significant = inside & (np.abs(dh) > lod)
+    return _kind(rasters, win, inside, significant, dh, lod, options)[0]
 
 
 def describe_region(

@@ -45,6 +45,9 @@ NO_CHANGE, LOSS, GAIN = 0, 1, 2
 ERROR_MODELS = ("heteroscedastic", "uniform")
 LOD_FILE = "lod.tif"
 ERROR_MODEL_FILE = "error_model.json"
+# Tags of the significance mask: the simple baseline's median and LoD95 (floored only).
+BASELINE_MEDIAN_TAG = "BASELINE_MEDIAN_M"
+BASELINE_LOD_TAG = "BASELINE_LOD_M"
 __all__ = ["GAIN", "LOD_Z", "LOSS", "NO_CHANGE", "DifferenceOptions", "difference"]
 
 
@@ -177,7 +180,12 @@ def difference(
     write_geotiff(dh_out, dh, transform, crs)
     write_geotiff(Path(dh_out).parent / LOD_FILE, lod, transform, crs)
     write_text_atomic(Path(dh_out).parent / ERROR_MODEL_FILE, json.dumps(model.to_dict(), indent=1))
-    write_geotiff(significance_out, significance, transform, crs, tags={"LOD_M": repr(lod_median)})
+    tags = {"LOD_M": repr(lod_median)}
+    if floored:
+        # The baseline's own test, so that its regions can be judged as the baseline
+        # judges them (change_regions.baseline_surface_changes).
+        tags |= {BASELINE_MEDIAN_TAG: repr(float(median)), BASELINE_LOD_TAG: repr(float(lod95))}
+    write_geotiff(significance_out, significance, transform, crs, tags=tags)
     progress(1.0)
     return DifferenceResult(
         nmad_m=nmad,

@@ -30,6 +30,7 @@ from worker.pipeline.change_regions import (
     Region,
     RegionOptions,
     describe_region,
+    judge_by_baseline,
     label_regions,
     load_change_rasters,
     min_area_m2,
@@ -55,6 +56,10 @@ class VectorizeOptions(RegionOptions):
     # the training seeds 0-11 of the seven pair generators (docs/significance.md), where
     # 3.25 lost one and 4 three. None: no volume test.
     min_volume_z: float | None = 3.0
+    # Judge surface change on the simple baseline's region around each region too
+    # (change_regions.judge_by_baseline): the default then sets aside whatever the
+    # baseline does.
+    surface_by_baseline: bool = True
 
 
 @dataclass
@@ -98,6 +103,8 @@ def vectorize(
         describe_region(rasters, labels, label, window, options)
         for label, window in zip(keep, windows, strict=True)
     ]
+    if options.surface_by_baseline:
+        regions = judge_by_baseline(rasters, labels, keep, windows, regions, options)
     landslides, surface = split_surface_changes(
         [r for r in regions if _volume_significant(r, options)], options
     )
