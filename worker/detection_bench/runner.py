@@ -31,6 +31,7 @@ from worker.detection_bench.tables import format_tables
 from worker.pairgen.pair import PAIR_CRS, TRUTH_JSON, DsmPair, PairUnavailable
 from worker.pipeline import comparison
 from worker.pipeline.detection_methods import method_names
+from worker.pipeline.methods.threshold import BASELINE_OPTIONS
 
 KINDS = ("pair", "twin")
 DEFAULT_WORK_DIR = Path("data/bench-detection-generators")
@@ -83,10 +84,7 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 # baseline's LoD costs), "threshold-noflanks" the floor without the flanks that join
 # significant change, "threshold-novolume" the default without its volume test.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "threshold-uniform": (
-        "threshold",
-        {"difference": {"error_model": "uniform"}, "vectorize": {"min_volume_z": None}},
-    ),
+    "threshold-uniform": ("threshold", BASELINE_OPTIONS),
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
     "threshold-noflanks": ("threshold", {"difference": {"flank_area_z": None}}),
     "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),

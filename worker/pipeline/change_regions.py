@@ -353,6 +353,18 @@ def judge_by_baseline(
     return out
 
 
+def _padded(
+    window: tuple[slice, slice], shape: tuple[int, ...], pad: int = 4
+) -> tuple[slice, slice]:
+    """A region's window grown by `pad` pixels (within the raster): room for the
+    dilations that look around it."""
+    rows, cols = window
+    return (
+        slice(max(rows.start - pad, 0), min(rows.stop + pad, shape[0])),
+        slice(max(cols.start - pad, 0), min(cols.stop + pad, shape[1])),
+    )
+
+
 def _baseline_kind(
     rasters: ChangeRasters,
     base_labels: np.ndarray,
@@ -363,12 +375,7 @@ def _baseline_kind(
     options: RegionOptions,
 ) -> str:
     """The object rule's verdict on one region of the baseline (its one LoD everywhere)."""
-    pad = 4
-    rows, cols = window
-    win = (
-        slice(max(rows.start - pad, 0), min(rows.stop + pad, base_labels.shape[0])),
-        slice(max(cols.start - pad, 0), min(cols.stop + pad, base_labels.shape[1])),
-    )
+    win = _padded(window, base_labels.shape)
     inside = base_labels[win] == base
     dh = centred[win]
     lod = np.full(dh.shape, np.float32(lod95))
@@ -385,12 +392,8 @@ def describe_region(
     options: RegionOptions,
 ) -> Region:
     """The region's polygon, sizes with 95 % intervals, and its traits."""
-    pad = 4
-    rows, cols = window
-    r0, c0 = max(rows.start - pad, 0), max(cols.start - pad, 0)
-    r1 = min(rows.stop + pad, labels.shape[0])
-    c1 = min(cols.stop + pad, labels.shape[1])
-    win = (slice(r0, r1), slice(c0, c1))
+    win = _padded(window, labels.shape)
+    (r0, r1), (c0, c1) = ((w.start, w.stop) for w in win)
     inside = labels[win] == label
     dh = rasters.dh[win]
     lod = rasters.lod[win]

@@ -60,6 +60,7 @@ from worker.pipeline.cnn.patches import (
 )
 from worker.pipeline.cnn.registry import LoadedModel
 from worker.pipeline.comparison import ComparisonOptions, compare_dsms, run_stage
+from worker.pipeline.methods.threshold import BASELINE_OPTIONS
 from worker.pipeline.raster_io import write_geotiff
 from worker.training.dataset import DatasetManifest, load_pair
 from worker.training.training import binary_metrics
@@ -95,12 +96,9 @@ def lod_options(pixel_size_m: float, error_model: str = "heteroscedastic") -> Co
     """The threshold method as this protocol runs it: its per-pixel error model (the
     default) or one NMAD for the raster and no volume test ("uniform", the baseline, as
     the generator benchmark runs it), the minimum area scaled with the pixel size."""
-    options = ComparisonOptions.from_dict(
-        {"method": "threshold", "difference": {"error_model": error_model}}
-    )
+    chosen = BASELINE_OPTIONS if error_model == "uniform" else {}
+    options = ComparisonOptions.from_dict({"method": "threshold", **chosen})
     options.detection.min_area_m2 = LOD_MIN_AREA_PX * pixel_size_m**2
-    if error_model == "uniform":
-        options.detection.min_volume_z = None
     return options
 
 

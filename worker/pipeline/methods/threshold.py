@@ -31,6 +31,11 @@ def run_vectorize(context: ComparisonContext, progress: ProgressFn) -> Vectorize
     )
 
 
+# The simple baseline the default is measured against (benchmarks and the paper's
+# protocol): one NMAD for the whole raster and no volume test; the comparison options
+# that turn this method into it.
+BASELINE_OPTIONS = {"difference": {"error_model": "uniform"}, "vectorize": {"min_volume_z": None}}
+
 METHOD = DetectionMethod(
     name="threshold",
     summary="The LoD method: every change beyond its per-pixel level of detection "
