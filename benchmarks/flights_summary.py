@@ -106,7 +106,9 @@ TARGETS = (
     Target("dsm_nmad_coregistered_px", "p90", 2.0),
     Target("trajectory_rmse_m", "p90", 0.5, scenario="hillslope"),
     Target("sfm_over_slam_wall_time", "median", 10.0, higher_is_better=True),
-    Target("real_time_factor", "median", 1.0, higher_is_better=True),
+    # The bar is the whole pipeline's (video seconds over the wall time of every
+    # stage), not the reconstruction stage's alone.
+    Target("real_time_factor_pipeline", "median", 1.0, higher_is_better=True),
 )
 
 
@@ -247,7 +249,7 @@ CONDITION_FIGURES = (
     "completeness",
     "trajectory_rmse_m",
     "georef_residual_h_m",
-    "real_time_factor",
+    "real_time_factor_pipeline",
 )
 
 

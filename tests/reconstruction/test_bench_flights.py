@@ -102,6 +102,7 @@ def _record(seed, gnss, nmad_px, coreg_px, completeness, ok=True, ratio=None):
         "dsm_nmad_coregistered_px": coreg_px,
         "completeness": completeness,
         "real_time_factor_reconstruct": 1.5,
+        "real_time_factor_pipeline": 0.8,
         "trajectory": {"rmse_after_similarity_m": 0.01},
         "georeference": {"worst_rms_h_m": 0.05, "all_within_stated_accuracy": True},
     }
@@ -135,7 +136,10 @@ def test_summary_gives_median_p90_and_worst_never_the_best():
     assert status[("dsm_nmad_as_georeferenced_px", "median <= 2")] == "not met"
     assert status[("dsm_nmad_coregistered_px", "p90 <= 2")] == "met"
     assert status[("sfm_over_slam_wall_time", "median >= 10")] == "met"
-    assert status[("real_time_factor", "median >= 1")] == "met"
+    # The whole pipeline's real-time factor (0.8) is judged, not the reconstruction
+    # stage's (1.5).
+    assert status[("real_time_factor_pipeline", "median >= 1")] == "not met"
+    assert ("real_time_factor", "median >= 1") not in status
     # The RTK-only bars are not applied to stand-alone flights; hillslope's not to these.
     standalone = {t["target"] for t in summary["paper-mounds/standalone"]["targets"]}
     assert "median <= 2" not in standalone

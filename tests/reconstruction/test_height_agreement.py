@@ -47,6 +47,7 @@ def test_memory_stays_bounded_by_sampling():
     points, kf, partner = _pairs(4, (0.3, 0.3), (0, 5))
     full = pair_agreement(points, kf, partner, 0.5)
     sampled = pair_agreement(points, kf, partner, 0.5, max_points=40_000)
-    assert sampled["points_used"] == 40_000
+    # A seeded draw of each point with the same chance: about 40 000 of the 80 000.
+    assert sampled["points_used"] == pytest.approx(40_000, abs=600)
     # Half the points per cell: the means' noise grows by the square root of 2.
     assert sampled["agreement_m"] == pytest.approx(full["agreement_m"] * np.sqrt(2), rel=0.15)

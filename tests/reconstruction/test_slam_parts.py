@@ -381,3 +381,78 @@ def test_densification_in_the_worker_thread_is_repeatable(terrain):
     np.testing.assert_array_equal(first.dense_xyz, second.dense_xyz)
     np.testing.assert_array_equal(first.dense_kf, second.dense_kf)
     assert first.stats["timing_s"]["densify_thread"] > 0
+
+
+def test_a_wider_second_pair_gives_quieter_heights(terrain):
+    """Each keyframe is matched with a partner at a tenth of the depth and with a wider
+    one at a fifth: the wider pair's heights, against the terrain's truth, scatter less
+    (a height's noise falls as the baseline grows)."""
+    from worker.pipeline.ingest.camera import resolve_intrinsics
+    from worker.pipeline.slam.system import SlamOptions, run_slam
+
+    grid, dsm, _ = terrain
+    ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
+    camera = CameraModel.phantom4pro(320, 180)
+    renderer = HeightFieldRenderer(dsm, grid, ortho, camera, RenderOptions(noise_sigma=0.5))
+    r = rotation_world_from_camera(90.0, -90.0, 0.0)
+    centres = np.array([[-30.0 + 1.2 * i, 0.0, 110.0] for i in range(40)])
+    frames = [
+        (i / 10.0, i, cv2.cvtColor(renderer.render(c, r).image, cv2.COLOR_RGB2GRAY))
+        for i, c in enumerate(centres)
+    ]
+    intr = resolve_intrinsics(320, 180, exif_model="FC6310")
+    options = SlamOptions(init_parallax_px=12.0, init_min_points=40)
+    options.keyframes.parallax_px = 15.0
+    sparse = run_slam(frames, intr, options)
+    # Cameras on a straight line leave the roll about it free: the map is put on the
+    # ground by the first keyframe's known attitude, its scale and offset fitted.
+    traj = sparse.trajectory(0)
+    truth = centres[np.rint(traj.t * 10).astype(int)]
+    world_from_map = r @ sparse.kf_r[0]
+    placed = traj.positions @ world_from_map.T
+    d_placed, d_truth = placed - placed.mean(axis=0), truth - truth.mean(axis=0)
+    scale = float(np.sum(d_placed * d_truth) / np.sum(d_placed**2))
+    offset = truth.mean(axis=0) - scale * placed.mean(axis=0)
+    assert np.abs(scale * placed + offset - truth).max() < 0.3
+    points = scale * sparse.dense_points() @ world_from_map.T + offset
+    col, row = grid.col_row(points[:, 0], points[:, 1])
+    col, row = np.rint(col).astype(int), np.rint(row).astype(int)
+    inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
+    error = points[inside, 2] - dsm[row[inside], col[inside]]
+    ratio = sparse.dense_baseline_ratio()[inside]
+    wide_from = options.densify.wide_pairs_from()
+    wide, narrow = error[ratio >= wide_from], error[ratio < wide_from]
+    assert wide.size > 20_000 and narrow.size > 20_000
+
+    def nmad(e):
+        return 1.4826 * np.median(np.abs(e - np.median(e)))
+
+    assert nmad(wide) < 0.6 * nmad(narrow)
+    assert np.median(ratio[ratio >= wide_from]) == pytest.approx(0.2, abs=0.04)
+    assert np.median(ratio[ratio < wide_from]) == pytest.approx(0.1, abs=0.03)
+
+
+def test_wide_pairs_replace_narrow_ones_only_in_the_cells_they_measure():
+    """A narrow pair over 20 x 20 m (heights 10 cm noisy), a wide one over its western
+    half (3 cm): the DSM keeps the wide pair's points in the west, the narrow pair's in
+    the east, and no cell loses its height."""
+    from worker.pipeline.slam.densify import wide_pair_points
+
+    rng = np.random.default_rng(5)
+    narrow = np.column_stack([rng.uniform(0, 20, (2, 40_000)).T, rng.normal(0, 0.10, 40_000)])
+    wide = np.column_stack(
+        [rng.uniform(0, 10, 20_000), rng.uniform(0, 20, 20_000), rng.normal(0, 0.03, 20_000)]
+    )
+    points = np.concatenate([narrow, wide])
+    ratio = np.concatenate([np.full(40_000, 0.1), np.full(20_000, 0.2)])
+    keep = wide_pair_points(points, ratio, 0.14, 0.5)
+    west = points[:, 0] < 9.9
+    assert keep[40_000:].all()
+    assert not keep[:40_000][west[:40_000]].any()
+    assert keep[:40_000][points[:40_000, 0] >= 10.0].all()
+    cells = {tuple(c) for c in np.floor(points[:, :2] / 0.5).astype(int)}
+    kept_cells = {tuple(c) for c in np.floor(points[keep, :2] / 0.5).astype(int)}
+    assert kept_cells == cells
+    assert np.std(points[keep & west, 2]) == pytest.approx(0.03, rel=0.1)
+    # Without wide pairs every point stays.
+    assert wide_pair_points(narrow, np.full(40_000, 0.1), 0.14, 0.5).all()

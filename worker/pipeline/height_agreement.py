@@ -39,23 +39,32 @@ def pair_agreement(
     if n == 0:
         return None
     if n > max_points:
-        pick = np.sort(np.random.default_rng(0).choice(n, max_points, replace=False))
+        # A seeded Bernoulli draw: a tenth of the cost of choosing without replacement.
+        pick = np.flatnonzero(np.random.default_rng(0).random(n) < max_points / n)
         points, kf, partner = points[pick], kf[pick], partner[pick]
     x = np.floor(points[:, 0] / cell_m).astype(np.int64)
     y = np.floor(points[:, 1] / cell_m).astype(np.int64)
     x -= x.min()
     y -= y.min()
     cell = x * (int(y.max()) + 1) + y
-    pair_ids, pair = np.unique(np.column_stack([kf, partner]), axis=0, return_inverse=True)
-    pair = pair.ravel()
-    keys, group = np.unique(cell * len(pair_ids) + pair, return_inverse=True)
-    mean = np.bincount(group, weights=points[:, 2]) / np.bincount(group)
-    key_cell, key_pair = keys // len(pair_ids), keys % len(pair_ids)
-    first_kf = pair_ids[key_pair, 0]
+    # A pair as one integer ordered by its first keyframe (np.unique over rows, axis=0,
+    # took 3 of the DSM stage's 11 s on a 30-s flight).
+    partners = int(partner.max()) + 1
+    pair_codes, pair = np.unique(kf.astype(np.int64) * partners + partner, return_inverse=True)
+    n_pairs = len(pair_codes)
+    key = cell * n_pairs + pair.ravel()
+    order = np.argsort(key)
+    key = key[order]
+    new_key = _starts(key)
+    group = np.cumsum(new_key) - 1
+    mean = np.bincount(group, weights=points[order, 2]) / np.bincount(group)
+    keys = key[new_key]
+    key_cell = keys // n_pairs
+    first_kf = pair_codes[keys % n_pairs] // partners
     # Keys sort by cell, then by pair (by its first keyframe): a cell's first and last
     # keys are its earliest and latest pairs.
-    _, first, count = np.unique(key_cell, return_index=True, return_counts=True)
-    last = first + count - 1
+    first = np.flatnonzero(_starts(key_cell))
+    last = np.append(first[1:], keys.size) - 1
     apart = np.abs(first_kf[last] - first_kf[first]) >= min_gap
     if apart.sum() < 100:
         return None
@@ -66,3 +75,12 @@ def pair_agreement(
         "cells": int(apart.sum()),
         "points_used": len(points),
     }
+
+
+def _starts(sorted_values: np.ndarray) -> np.ndarray:
+    """True where a run of equal values begins in a sorted array."""
+    start = np.empty(sorted_values.size, dtype=bool)
+    if sorted_values.size:
+        start[0] = True
+        np.not_equal(sorted_values[1:], sorted_values[:-1], out=start[1:])
+    return start

@@ -115,7 +115,7 @@ from worker.pipeline.reconstruction_results import (
     plain,
 )
 from worker.pipeline.sfm import SfmOptions, run_sfm
-from worker.pipeline.slam.densify import DensifyOptions
+from worker.pipeline.slam.densify import DensifyOptions, wide_pair_points
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
 from worker.pipeline.slam.ties import TieOptions, keyframe_images, tie_flight_lines
@@ -642,10 +642,20 @@ def dsm(
     n = n_dense
     if n_dense:
         sparse.dense_points(out=cloud[:n_dense])
-        # Before any filter: the points keep their pairs' order (see height_agreement).
-        agreement = pair_agreement(
-            cloud[:n_dense], sparse.dense_kf, sparse.dense_partner, resolution
-        )
+        pair_kf, pair_partner = sparse.dense_kf, sparse.dense_partner
+        # Only SLAM matches each keyframe twice (the sfm method's pairs are one per view).
+        slam = _read_result(work_dir, IngestResult).method == "slam"
+        wide_from = options.slam.densify.wide_pairs_from() if slam else None
+        if wide_from is not None:
+            keep = wide_pair_points(cloud[:n], sparse.dense_baseline_ratio(), wide_from, resolution)
+            out["dense_narrow_replaced"] = int((~keep).sum())
+            n = compact_rows(cloud, keep)
+            pair_kf, pair_partner = pair_kf[keep], pair_partner[keep]
+            del keep
+        # Before the outlier filters, on the points the DSM is made of: compaction keeps
+        # the pairs' order (see height_agreement).
+        agreement = pair_agreement(cloud[:n], pair_kf, pair_partner, resolution)
+        del pair_kf, pair_partner
         if agreement is not None:
             out["height_agreement"] = agreement
         if options.dense_sor:

@@ -28,6 +28,11 @@ class DensifyOptions:
     min_baseline_ratio: float = 0.04  # baseline / median depth of the pair
     target_baseline_ratio: float = 0.1
     max_baseline_ratio: float = 0.3
+    # A second, wider pair per keyframe (SLAM): its heights, whose noise falls as the
+    # baseline grows, replace the first pair's in every DSM cell it measures; the first
+    # pair, which overlaps more, fills the rest (see `wide_pair_points`). None: one pair.
+    wide_baseline_ratio: float | None = 0.2
+    max_wide_baseline_ratio: float = 0.45
     block_size: int = 5
     stride: int = 2  # keep every n-th pixel in both directions
     uniqueness: int = 10
@@ -39,6 +44,13 @@ class DensifyOptions:
     # keyframes, turned little between them, lose almost nothing); up to 1 keeps every
     # source pixel, which photos turned by tens of degrees (a turn) need.
     rectify_alpha: float = 0.0
+
+    def wide_pairs_from(self) -> float | None:
+        """The baseline ratio from which a pair counts as wide (halfway, in log, between
+        the first pair's and the wide pair's), or None without wide pairs."""
+        if self.wide_baseline_ratio is None:
+            return None
+        return float(np.sqrt(self.target_baseline_ratio * self.wide_baseline_ratio))
 
 
 def _rotated_k(k: np.ndarray, height: int) -> np.ndarray:
@@ -142,3 +154,26 @@ def densify_pair(
     pts = pts @ turn  # undo the turn: X_a = turn^T X_turned
     keep = (pts[:, 2] > zmin) & (pts[:, 2] < zmax)
     return pts[keep].astype(np.float32)
+
+
+def wide_pair_points(
+    points: np.ndarray, baseline_ratio: np.ndarray, wide_from: float, cell_m: float
+) -> np.ndarray:
+    """Mask of the dense points a DSM of `cell_m` cells keeps: in every cell measured by a
+    pair whose baseline is at least `wide_from` of the depth, only those pairs' points
+    (a height's noise falls as the baseline grows); elsewhere every point."""
+    wide = baseline_ratio >= wide_from
+    if not wide.any() or wide.all():
+        return np.ones(len(points), dtype=bool)
+    # Cells on the DSM's own grid (whole multiples of the cell from the origin, as
+    # dsm_export snaps it): on a grid shifted from it, a DSM cell the wide pair missed
+    # would lose its narrow pair's points to a neighbour the wide pair measured.
+    col = np.floor(points[:, 0] / cell_m).astype(np.int64)
+    row = np.floor(points[:, 1] / cell_m).astype(np.int64)
+    col -= col.min()
+    row -= row.min()
+    cell = col * (int(row.max()) + 1) + row
+    del col, row
+    covered = np.zeros(int(cell.max()) + 1, dtype=bool)
+    covered[cell[wide]] = True
+    return wide | ~covered[cell]

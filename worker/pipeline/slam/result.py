@@ -124,6 +124,12 @@ class SparseMap:
             return self.point_xyz
         return self.point_xyz[self.point_segment == segment]
 
+    def dense_baseline_ratio(self) -> np.ndarray:
+        """Per dense point, its pair's baseline over the point's depth (as computed)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = self.dense_baseline / self.dense_xyz[:, 2]
+        return np.nan_to_num(ratio, nan=0.0, posinf=0.0, neginf=0.0)
+
     def dense_points(self, segment: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Dense points in the map frame from the current keyframe poses.
 

@@ -10,7 +10,10 @@ ray angle, windowed bundle adjustment (the newest `ba_window` keyframes free, up
 `ba_fixed` older ones fixed; the first two keyframes of a segment stay fixed and set its
 scale), cull points that reproject badly, detect new corners, and densify the keyframes
 that have left the window with SGBM against the partner whose baseline is closest to
-`target_baseline_ratio` of the depth. SGBM runs in a worker thread beside the tracking
+`target_baseline_ratio` of the depth, and against a second one closest to
+`wide_baseline_ratio` (the DSM takes the wider pair's heights where it has them: the
+noise of a height falls as the baseline grows; the first pair overlaps more and fills
+the rest). SGBM runs in a worker thread beside the tracking
 (OpenCV releases the GIL): its inputs are fixed when it is queued, so the result does
 not depend on the timing.
 
@@ -101,6 +104,15 @@ class _Reference:
     ids: np.ndarray
     uv: np.ndarray
     frames: int = 0
+
+
+def _closest_ratio(ratios: dict[int, float], target: float, low: float, high: float) -> int | None:
+    """The keyframe whose baseline ratio is closest to `target` (in log) within
+    [low, high], or None."""
+    inside = {i: r for i, r in ratios.items() if low <= r <= high}
+    if not inside:
+        return None
+    return min(inside, key=lambda i: abs(np.log(inside[i] / target)))
 
 
 class VisualSlam:
@@ -515,30 +527,39 @@ class VisualSlam:
             return
         depth = float(np.median(z))
         centre = camera_center(kf.r, kf.tr)
-        best, best_score = None, np.inf
-        for other in seg:
-            if other is kf or other.image is None:
-                continue
-            ratio = np.linalg.norm(camera_center(other.r, other.tr) - centre) / depth
-            if o.min_baseline_ratio <= ratio <= o.max_baseline_ratio:
-                score = abs(np.log(ratio / o.target_baseline_ratio))
-                if score < best_score:
-                    best, best_score = other, score
-        if best is None:
-            return
-        lo, hi = np.percentile(z, [2, 98])
-        future = self._densifier.submit(
-            self._densify_pair,
-            kf.image,
-            best.image,
-            self.k,
-            (kf.r.copy(), kf.tr.copy()),
-            (best.r.copy(), best.tr.copy()),
-            (lo, hi),
-            o,
+        ratios = {
+            other.index: float(np.linalg.norm(camera_center(other.r, other.tr) - centre)) / depth
+            for other in seg
+            if other is not kf and other.image is not None
+        }
+        first = _closest_ratio(
+            ratios, o.target_baseline_ratio, o.min_baseline_ratio, o.max_baseline_ratio
         )
-        baseline = float(np.linalg.norm(camera_center(best.r, best.tr) - centre))
-        self.dense.append((kf.index, best.index, future, baseline))
+        if first is None:
+            return
+        partners = [first]
+        if o.wide_baseline_ratio is not None:
+            # Only a pair clearly wider than the first is worth its matching.
+            wide = _closest_ratio(
+                ratios, o.wide_baseline_ratio, 1.5 * ratios[first], o.max_wide_baseline_ratio
+            )
+            if wide is not None:
+                partners.append(wide)
+        lo, hi = np.percentile(z, [2, 98])
+        for index in partners:
+            other = self.keyframes[index]
+            future = self._densifier.submit(
+                self._densify_pair,
+                kf.image,
+                other.image,
+                self.k,
+                (kf.r.copy(), kf.tr.copy()),
+                (other.r.copy(), other.tr.copy()),
+                (lo, hi),
+                o,
+            )
+            baseline = ratios[index] * depth
+            self.dense.append((kf.index, other.index, future, baseline))
 
     def _densify_pair(self, *args: Any) -> np.ndarray:
         """`densify_pair` in the worker thread, timed (only that thread adds to the key)."""
