@@ -419,40 +419,54 @@ def test_a_wider_second_pair_gives_quieter_heights(terrain):
     col, row = np.rint(col).astype(int), np.rint(row).astype(int)
     inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
     error = points[inside, 2] - dsm[row[inside], col[inside]]
-    ratio = sparse.dense_baseline_ratio()[inside]
-    wide_from = options.densify.wide_pairs_from()
-    wide, narrow = error[ratio >= wide_from], error[ratio < wide_from]
+    is_wide = sparse.dense_wide_pair()[inside]
+    ratio = (sparse.dense_baseline / sparse.dense_xyz[:, 2])[inside]
+    wide, narrow = error[is_wide], error[~is_wide]
     assert wide.size > 20_000 and narrow.size > 20_000
 
     def nmad(e):
         return 1.4826 * np.median(np.abs(e - np.median(e)))
 
     assert nmad(wide) < 0.6 * nmad(narrow)
-    assert np.median(ratio[ratio >= wide_from]) == pytest.approx(0.2, abs=0.04)
-    assert np.median(ratio[ratio < wide_from]) == pytest.approx(0.1, abs=0.03)
+    assert np.median(ratio[is_wide]) == pytest.approx(0.2, abs=0.04)
+    assert np.median(ratio[~is_wide]) == pytest.approx(0.1, abs=0.03)
 
 
-def test_wide_pairs_replace_narrow_ones_only_in_the_cells_they_measure():
-    """A narrow pair over 20 x 20 m (heights 10 cm noisy), a wide one over its western
-    half (3 cm): the DSM keeps the wide pair's points in the west, the narrow pair's in
-    the east, and no cell loses its height."""
+def test_wide_pairs_refine_narrow_ones_where_both_agree_and_never_stand_alone():
+    """A narrow pair over 20 x 20 m (heights 10 cm noisy); a wide one (3 cm) over its
+    western half, with a 5-m-wide strip beyond the narrow pair's reach and a block of
+    cells 8 m off (mismatches). The DSM keeps the wide pair's points where the two agree,
+    the narrow pair's everywhere else, and nothing of the wide pair alone."""
     from worker.pipeline.slam.densify import wide_pair_points
 
     rng = np.random.default_rng(5)
     narrow = np.column_stack([rng.uniform(0, 20, (2, 40_000)).T, rng.normal(0, 0.10, 40_000)])
     wide = np.column_stack(
-        [rng.uniform(0, 10, 20_000), rng.uniform(0, 20, 20_000), rng.normal(0, 0.03, 20_000)]
+        [rng.uniform(-5, 10, 30_000), rng.uniform(0, 20, 30_000), rng.normal(0, 0.03, 30_000)]
     )
+    wrong = (wide[:, 0] > 2) & (wide[:, 0] < 4) & (wide[:, 1] > 2) & (wide[:, 1] < 4)
+    wide[wrong, 2] += 8.0
     points = np.concatenate([narrow, wide])
-    ratio = np.concatenate([np.full(40_000, 0.1), np.full(20_000, 0.2)])
-    keep = wide_pair_points(points, ratio, 0.14, 0.5)
-    west = points[:, 0] < 9.9
-    assert keep[40_000:].all()
-    assert not keep[:40_000][west[:40_000]].any()
-    assert keep[:40_000][points[:40_000, 0] >= 10.0].all()
-    cells = {tuple(c) for c in np.floor(points[:, :2] / 0.5).astype(int)}
+    is_wide = np.concatenate([np.zeros(40_000, bool), np.ones(30_000, bool)])
+    keep = wide_pair_points(points, is_wide, 0.5)
+    kept_wide, kept_narrow = keep[40_000:], keep[:40_000]
+    agree = (wide[:, 0] >= 0) & (wide[:, 0] < 9.5) & ~wrong
+    assert kept_wide[agree].mean() > 0.99
+    assert not kept_wide[wide[:, 0] < 0].any()  # alone beyond the narrow pair's reach
+    assert not kept_wide[wrong].any()
+    in_wrong = (narrow[:, 0] > 2) & (narrow[:, 0] < 4) & (narrow[:, 1] > 2) & (narrow[:, 1] < 4)
+    assert kept_narrow[in_wrong].all()
+    assert kept_narrow[narrow[:, 0] >= 10.0].all()
+    assert kept_narrow[(narrow[:, 0] > 1) & (narrow[:, 0] < 9) & ~in_wrong].mean() < 0.02
+    # Every cell the narrow pair measured keeps a height.
+    cells = {tuple(c) for c in np.floor(narrow[:, :2] / 0.5).astype(int)}
     kept_cells = {tuple(c) for c in np.floor(points[keep, :2] / 0.5).astype(int)}
-    assert kept_cells == cells
-    assert np.std(points[keep & west, 2]) == pytest.approx(0.03, rel=0.1)
+    assert cells <= kept_cells
+    west = keep & (points[:, 0] > 0) & (points[:, 0] < 9.5) & (points[:, 2] < 4)
+    assert np.std(points[west, 2]) == pytest.approx(0.03, rel=0.15)
+    # A point kilometres away (before the footprint filter drops it) changes nothing.
+    far = points.copy()
+    far[0] += 3000.0
+    np.testing.assert_array_equal(wide_pair_points(far, is_wide, 0.5)[1:], keep[1:])
     # Without wide pairs every point stays.
-    assert wide_pair_points(narrow, np.full(40_000, 0.1), 0.14, 0.5).all()
+    assert wide_pair_points(narrow, np.zeros(40_000, bool), 0.5).all()

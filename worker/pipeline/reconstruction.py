@@ -645,9 +645,8 @@ def dsm(
         pair_kf, pair_partner = sparse.dense_kf, sparse.dense_partner
         # Only SLAM matches each keyframe twice (the sfm method's pairs are one per view).
         slam = _read_result(work_dir, IngestResult).method == "slam"
-        wide_from = options.slam.densify.wide_pairs_from() if slam else None
-        if wide_from is not None:
-            keep = wide_pair_points(cloud[:n], sparse.dense_baseline_ratio(), wide_from, resolution)
+        if slam and options.slam.densify.wide_baseline_ratio is not None:
+            keep = wide_pair_points(cloud[:n], sparse.dense_wide_pair(), resolution)
             out["dense_narrow_replaced"] = int((~keep).sum())
             n = compact_rows(cloud, keep)
             pair_kf, pair_partner = pair_kf[keep], pair_partner[keep]

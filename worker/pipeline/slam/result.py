@@ -124,11 +124,29 @@ class SparseMap:
             return self.point_xyz
         return self.point_xyz[self.point_segment == segment]
 
-    def dense_baseline_ratio(self) -> np.ndarray:
-        """Per dense point, its pair's baseline over the point's depth (as computed)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = self.dense_baseline / self.dense_xyz[:, 2]
-        return np.nan_to_num(ratio, nan=0.0, posinf=0.0, neginf=0.0)
+    def dense_wide_pair(self) -> np.ndarray:
+        """Per dense point, whether its pair is the wider of its keyframe's two (SLAM
+        matches a keyframe with a second, wider partner; see DensifyOptions)."""
+        kf = self.dense_kf
+        wide = np.zeros(kf.size, dtype=bool)
+        if kf.size == 0:
+            return wide
+        partner, baseline = self.dense_partner, self.dense_baseline
+        # Points lie in runs of one pair: one decision per run.
+        changes = (kf[1:] != kf[:-1]) | (partner[1:] != partner[:-1])
+        starts = np.flatnonzero(np.concatenate([[True], changes]))
+        ends = np.append(starts[1:], kf.size)
+        widest: dict[int, tuple[float, int]] = {}
+        pairs_of: dict[int, int] = {}
+        for run, start in enumerate(starts):
+            key = int(kf[start])
+            pairs_of[key] = pairs_of.get(key, 0) + 1
+            if key not in widest or baseline[start] > widest[key][0]:
+                widest[key] = (float(baseline[start]), run)
+        for key, (_, run) in widest.items():
+            if pairs_of[key] > 1:
+                wide[starts[run] : ends[run]] = True
+        return wide
 
     def dense_points(self, segment: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Dense points in the map frame from the current keyframe poses.
