@@ -25,6 +25,12 @@ Flight i (seed = first seed + i) draws its conditions from its seed alone
 - the simulation seed itself: terrain, texture, sun (azimuth, elevation 38-62 deg),
   exposure, the GNSS and attitude error realisations.
 
+A run can hold some of these the same for every flight (`FixedConditions`: `--gnss`,
+`--plan`, `--altitude`, and `--plain` for no harder condition and the simulator's own
+render noise, as `slidewatch simulate` flies by default); the rest is drawn as above.
+Issue 18's own flights are `--flights 8 --scenario paper-mounds --gnss rtk --plan
+lawnmower --altitude 7 --plain --video-seconds 30`.
+
 Each flight is simulated (one survey, 640x360 video, RTK or stand-alone logs), then
 reconstructed with `slam` as a user would (for RTK logs with the receiver's stated
 accuracy, 2 / 2 / 4 cm). Recorded per flight: success or the failure's reason (the
@@ -124,28 +130,48 @@ class FlightSettings:
     render_workers: int = 1
 
 
+@dataclass(frozen=True)
+class FixedConditions:
+    """What a run holds the same for every flight instead of drawing it from the seed
+    (None: drawn). `plain`: no harder condition, and the simulator's own render noise."""
+
+    gnss: str | None = None
+    plan: str | None = None
+    altitude_m: float | None = None
+    plain: bool = False
+
+
 def draw_conditions(
     seed: int,
     scenarios: tuple[str, ...] = SCENARIOS,
     video_seconds: tuple[float, float] = (20.0, 30.0),
+    fixed: FixedConditions | None = None,
 ) -> FlightConditions:
     """The conditions of the flight with this seed. Scenario and GNSS mode cycle with
     the seed (every four consecutive seeds cover both scenarios x both modes); the rest
-    is drawn from the seed's own random stream."""
+    is drawn from the seed's own random stream. What `fixed` holds replaces the draw;
+    every value is drawn all the same, so that the others stay what they were."""
+    fixed = fixed or FixedConditions()
     scenario = scenarios[((seed - 1) // 2) % len(scenarios)]
-    gnss = GNSS_MODES[(seed - 1) % 2]
+    gnss = fixed.gnss or GNSS_MODES[(seed - 1) % 2]
     rng = rng_for(seed, "bench-flight-conditions")
     plan = str(rng.choice(PLANS[scenario]))
+    plan = fixed.plan or plan
+    if plan not in PLANS[scenario]:
+        raise ValueError(f"{scenario} flies {' or '.join(PLANS[scenario])}, not {plan}")
     lo, hi = PAPER_3D_ALTITUDE_M if plan == "paper-3d" else ALTITUDE_M[scenario]
+    altitude = round(float(rng.uniform(lo, hi)), 1)
     base = FlightConditions(
         seed=seed,
         scenario=scenario,
         gnss=gnss,
         plan=plan,
-        altitude_m=round(float(rng.uniform(lo, hi)), 1),
+        altitude_m=altitude if fixed.altitude_m is None else fixed.altitude_m,
         video_seconds=round(float(rng.uniform(*video_seconds)), 1),
         noise_sigma=round(float(rng.uniform(*NOISE_SIGMA)), 2),
     )
+    if fixed.plain:
+        return replace(base, noise_sigma=RenderOptions().noise_sigma)
     return _harder(base, rng_for(seed, "bench-flight-harder-conditions"))
 
 
@@ -372,12 +398,13 @@ def run_flights(
     scenarios: tuple[str, ...],
     sfm_every: int,
     on_flight: Callable[[list[dict[str, Any]]], None] | None = None,
+    fixed: FixedConditions | None = None,
 ) -> list[dict[str, Any]]:
     """Every flight, one after the other (each uses the machine's cores itself);
     `on_flight(records)` after each, so a long run can save what it has."""
     records: list[dict[str, Any]] = []
     for i, seed in enumerate(seeds):
-        cond = draw_conditions(seed, scenarios, settings.video_seconds)
+        cond = draw_conditions(seed, scenarios, settings.video_seconds, fixed)
         with_sfm = sfm_every > 0 and i % sfm_every == 0
         records.append(run_flight(cond, work_root / f"seed{seed:04d}", settings, with_sfm))
         if on_flight is not None:

@@ -12,10 +12,11 @@ from __future__ import annotations
 import json
 import platform
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from flights import SCENARIOS, FlightSettings, run_flights
+from flights import SCENARIOS, FixedConditions, FlightSettings, run_flights
 from flights_summary import TARGETS, by_condition, condition_table, summarize, table
 from reconstruction import warm_imports
 
@@ -30,8 +31,10 @@ def run(
     video_seconds: float | None = None,
     video: tuple[int, int, float] = (640, 360, 30.0),
     sfm_every: int = 5,
+    fixed: FixedConditions | None = None,
 ) -> dict[str, Any]:
-    """Run the flights of `seeds` and write the report; returns it with its table."""
+    """Run the flights of `seeds` and write the report; returns it with its table.
+    `fixed`: what every flight holds the same instead of drawing it."""
     width, height, fps = video
     settings = FlightSettings(
         width=width,
@@ -50,6 +53,7 @@ def run(
             "height": height,
             "fps": fps,
             "video_seconds": list(settings.video_seconds),
+            "fixed": asdict(fixed or FixedConditions()),
         },
         "targets": [t.__dict__ for t in TARGETS],
     }
@@ -64,7 +68,7 @@ def run(
         write_text_atomic(json_path, json.dumps(report, indent=2))
         print(f"flight {len(records)}/{len(seeds)}: {_line(records[-1])}", flush=True)
 
-    run_flights(seeds, work_dir, settings, tuple(scenarios or SCENARIOS), sfm_every, save)
+    run_flights(seeds, work_dir, settings, tuple(scenarios or SCENARIOS), sfm_every, save, fixed)
     report["table"] = table(report["summary"]) + "\n" + condition_table(report["by_condition"])
     return report
 

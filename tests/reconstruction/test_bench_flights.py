@@ -4,6 +4,7 @@ per scenario x GNSS mode, and one tiny flight through the command."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 from click.testing import CliRunner
@@ -32,6 +33,32 @@ def test_conditions_come_from_the_seed_alone():
     assert {c.plan for c in first if c.scenario == "paper-mounds"} == {"lawnmower", "paper-3d"}
     only = flights.draw_conditions(19, scenarios=("hillslope",), video_seconds=(8.0, 8.0))
     assert only.scenario == "hillslope" and only.video_seconds == 8.0
+
+
+def test_a_run_can_hold_conditions_the_same_for_every_flight():
+    """Issue 18's own flights: paper-mounds, RTK, a lawnmower at 7 m, nothing harder, the
+    simulator's own render noise; the rest still drawn from the seed as before."""
+    from worker.simulator.render import RenderOptions
+
+    fixed = flights.FixedConditions(gnss="rtk", plan="lawnmower", altitude_m=7.0, plain=True)
+    for seed in range(1, 21):
+        drawn = flights.draw_conditions(seed, ("paper-mounds",), (30.0, 30.0))
+        held = flights.draw_conditions(seed, ("paper-mounds",), (30.0, 30.0), fixed)
+        assert (held.scenario, held.gnss, held.plan, held.altitude_m) == (
+            "paper-mounds",
+            "rtk",
+            "lawnmower",
+            7.0,
+        )
+        assert held.drawn() == [] and held.video_seconds == 30.0
+        assert held.noise_sigma == RenderOptions().noise_sigma
+        # Holding one condition leaves the others as the seed draws them.
+        only_gnss = flights.draw_conditions(
+            seed, ("paper-mounds",), (30.0, 30.0), flights.FixedConditions(gnss="rtk")
+        )
+        assert only_gnss == replace(drawn, gnss="rtk")
+    with pytest.raises(ValueError, match="hillslope flies lawnmower, not paper-3d"):
+        flights.draw_conditions(3, ("hillslope",), fixed=flights.FixedConditions(plan="paper-3d"))
 
 
 def test_each_harder_condition_has_a_block_of_four_seeds_one_per_scenario_and_gnss():
@@ -174,20 +201,22 @@ def test_a_miss_the_report_tells_is_not_silent():
 def test_one_tiny_flight_through_the_command(tmp_path):
     out = tmp_path / "flights.json"
     args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
-    # Seed 17: a block without harder conditions (a cross flight would fly twice as long).
+    # Seed 1 draws a cross pattern and stand-alone GPS; --plain and --gnss hold them off.
     args += ["--scenario", "paper-mounds", "--video-seconds", "4", "--sfm-every", "0"]
-    args += ["--first-seed", "17"]
+    args += ["--first-seed", "1", "--gnss", "rtk", "--plan", "lawnmower", "--plain"]
     args += ["--width", "192", "--height", "108", "--fps", "10"]
     result = CliRunner().invoke(reconstruction, args)
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     (flight,) = data["flights"]
-    assert flight["conditions"]["seed"] == 17 and flight["conditions"]["video_seconds"] == 4.0
+    assert flight["conditions"]["seed"] == 1 and flight["conditions"]["video_seconds"] == 4.0
     assert flight["conditions"]["drawn"] == []
+    assert (flight["conditions"]["gnss"], flight["conditions"]["plan"]) == ("rtk", "lawnmower")
+    assert data["settings"]["fixed"]["plain"] is True
     assert flight["success"] or flight["slam"]["failure"]["message"]
     (key,) = data["summary"]
-    assert key == "paper-mounds/standalone"
+    assert key == "paper-mounds/rtk"
     assert f"{key}: n=1" in result.output
     assert "dsm_nmad_coregistered_px" in result.output
-    assert data["by_condition"]["none"]["seeds"] == [17]
+    assert data["by_condition"]["none"]["seeds"] == [1]
     assert "by condition" in result.output

@@ -83,6 +83,30 @@ def load_benchmark(name: str) -> ModuleType:
     show_default=True,
     help="With --flights: every K-th flight is also reconstructed with sfm (0: none).",
 )
+@click.option(
+    "--gnss",
+    type=click.Choice(["standalone", "rtk"]),
+    default=None,
+    help="With --flights: every flight's GNSS mode (default: alternating).",
+)
+@click.option(
+    "--plan",
+    type=click.Choice(["lawnmower", "paper-3d"]),
+    default=None,
+    help="With --flights: every flight's plan (default: drawn; paper-3d is the mounds').",
+)
+@click.option(
+    "--altitude",
+    type=float,
+    default=None,
+    help="With --flights: every flight's height in metres (default: drawn).",
+)
+@click.option(
+    "--plain",
+    is_flag=True,
+    help="With --flights: no harder condition (cross, low sun, texture-poor, rolling "
+    "shutter) and the simulator's own render noise.",
+)
 @click.pass_context
 def reconstruction(
     ctx: click.Context,
@@ -98,6 +122,10 @@ def reconstruction(
     flights: int,
     first_seed: int,
     sfm_every: int,
+    gnss: str | None,
+    plan: str | None,
+    altitude: float | None,
+    plain: bool,
 ) -> None:
     """Wall time slam vs sfm, real-time factor, DSM, trajectory and georeferencing error."""
     if flights > 0:
@@ -107,8 +135,17 @@ def reconstruction(
         if ctx.get_parameter_source("height") is ParameterSource.DEFAULT:
             height = 360
         seeds = list(range(first_seed, first_seed + flights))
-        report = load_benchmark("flights_run").run(
-            json_path, work_dir, seeds, scenarios, video_seconds, (width, height, fps), sfm_every
+        flights_run = load_benchmark("flights_run")
+        fixed = flights_run.FixedConditions(gnss=gnss, plan=plan, altitude_m=altitude, plain=plain)
+        report = flights_run.run(
+            json_path,
+            work_dir,
+            seeds,
+            scenarios,
+            video_seconds,
+            (width, height, fps),
+            sfm_every,
+            fixed,
         )
         click.echo(report["table"])
         return
