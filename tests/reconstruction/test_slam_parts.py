@@ -355,40 +355,12 @@ def test_tracking_loss_starts_a_new_segment(terrain):
         assert len(traj) > 20 and err.max() < 0.3
 
 
-def test_densification_in_the_worker_thread_is_repeatable(terrain):
-    """SGBM runs beside the tracking; its inputs are fixed when queued, so two runs give
-    the same dense cloud."""
+def _straight_line_flight(terrain):
+    """Forty 320 x 180 frames looking down from 110 m, 1.2 m apart along a line over the
+    test terrain, and the SLAM options for them: (camera rotation, centres, frames,
+    intrinsics, options)."""
     from worker.pipeline.ingest.camera import resolve_intrinsics
-    from worker.pipeline.slam.system import SlamOptions, run_slam
-
-    grid, dsm, _ = terrain
-    ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
-    camera = CameraModel.phantom4pro(320, 180)
-    renderer = HeightFieldRenderer(dsm, grid, ortho, camera, RenderOptions(noise_sigma=0.5))
-    r = rotation_world_from_camera(90.0, -90.0, 0.0)
-    centres = [np.array([-30.0 + 1.2 * i, 0.0, 110.0]) for i in range(40)]
-    frames = [
-        (i / 10.0, i, cv2.cvtColor(renderer.render(c, r).image, cv2.COLOR_RGB2GRAY))
-        for i, c in enumerate(centres)
-    ]
-    intr = resolve_intrinsics(320, 180, exif_model="FC6310")
-    options = SlamOptions(init_parallax_px=12.0, init_min_points=40)
-    options.keyframes.parallax_px = 15.0
-    first = run_slam(frames, intr, options)
-    second = run_slam(frames, intr, options)
-    assert first.stats["counts"]["dense_pairs"] >= 8
-    assert first.dense_xyz.shape[0] > 20000
-    np.testing.assert_array_equal(first.dense_xyz, second.dense_xyz)
-    np.testing.assert_array_equal(first.dense_kf, second.dense_kf)
-    assert first.stats["timing_s"]["densify_thread"] > 0
-
-
-def test_a_wider_second_pair_gives_quieter_heights(terrain):
-    """Each keyframe is matched with a partner at a tenth of the depth and with a wider
-    one at a fifth: the wider pair's heights, against the terrain's truth, scatter less
-    (a height's noise falls as the baseline grows)."""
-    from worker.pipeline.ingest.camera import resolve_intrinsics
-    from worker.pipeline.slam.system import SlamOptions, run_slam
+    from worker.pipeline.slam.system import SlamOptions
 
     grid, dsm, _ = terrain
     ortho = np.repeat(texture(grid.shape, 1)[..., None], 3, axis=2)
@@ -403,6 +375,32 @@ def test_a_wider_second_pair_gives_quieter_heights(terrain):
     intr = resolve_intrinsics(320, 180, exif_model="FC6310")
     options = SlamOptions(init_parallax_px=12.0, init_min_points=40)
     options.keyframes.parallax_px = 15.0
+    return r, centres, frames, intr, options
+
+
+def test_densification_in_the_worker_thread_is_repeatable(terrain):
+    """SGBM runs beside the tracking; its inputs are fixed when queued, so two runs give
+    the same dense cloud."""
+    from worker.pipeline.slam.system import run_slam
+
+    _, _, frames, intr, options = _straight_line_flight(terrain)
+    first = run_slam(frames, intr, options)
+    second = run_slam(frames, intr, options)
+    assert first.stats["counts"]["dense_pairs"] >= 8
+    assert first.dense_xyz.shape[0] > 20000
+    np.testing.assert_array_equal(first.dense_xyz, second.dense_xyz)
+    np.testing.assert_array_equal(first.dense_kf, second.dense_kf)
+    assert first.stats["timing_s"]["densify_thread"] > 0
+
+
+def test_a_wider_second_pair_gives_quieter_heights(terrain):
+    """Each keyframe is matched with a partner at a tenth of the depth and with a wider
+    one at a fifth: the wider pair's heights, against the terrain's truth, scatter less
+    (a height's noise falls as the baseline grows)."""
+    from worker.pipeline.slam.system import run_slam
+
+    grid, dsm, _ = terrain
+    r, centres, frames, intr, options = _straight_line_flight(terrain)
     sparse = run_slam(frames, intr, options)
     # Cameras on a straight line leave the roll about it free: the map is put on the
     # ground by the first keyframe's known attitude, its scale and offset fitted.
