@@ -647,7 +647,7 @@ def dsm(
         slam = _read_result(work_dir, IngestResult).method == "slam"
         if slam and options.slam.densify.wide_baseline_ratio is not None:
             keep = wide_pair_points(cloud[:n], sparse.dense_wide_pair(), resolution)
-            out["dense_narrow_replaced"] = int((~keep).sum())
+            out["dense_pair_choice_removed"] = int((~keep).sum())
             n = compact_rows(cloud, keep)
             pair_kf, pair_partner = pair_kf[keep], pair_partner[keep]
             del keep

@@ -138,9 +138,10 @@ class DsmStageResult(ReconstructionStageResult):
     # with dense_sor, and when there is a dense cloud: the dense points each filter removed
     dense_sor_removed: int | None = field(default=None, metadata=_OPTIONAL)
     dense_grid_removed: int | None = field(default=None, metadata=_OPTIONAL)
-    # with wide pairs (DensifyOptions.wide_baseline_ratio): the points of narrower pairs
-    # dropped in cells a wide pair measured
-    dense_narrow_replaced: int | None = field(default=None, metadata=_OPTIONAL)
+    # with wide pairs (DensifyOptions.wide_baseline_ratio): the points the choice between
+    # a keyframe's two pairs dropped (the narrow pair's where the wide one agrees, the
+    # wide pair's elsewhere)
+    dense_pair_choice_removed: int | None = field(default=None, metadata=_OPTIONAL)
     dsm: dict[str, Any]
     points: int
     # when the cameras have ground footprints: the points outside all of them (grown by a

@@ -29,8 +29,8 @@ class DensifyOptions:
     target_baseline_ratio: float = 0.1
     max_baseline_ratio: float = 0.3
     # A second, wider pair per keyframe (SLAM): its heights, whose noise falls as the
-    # baseline grows, replace the first pair's in every DSM cell it measures; the first
-    # pair, which overlaps more, fills the rest (see `wide_pair_points`). None: one pair.
+    # baseline grows, replace the first pair's in the DSM cells where the two agree; the
+    # first pair keeps every other cell (see `wide_pair_points`). None: one pair.
     wide_baseline_ratio: float | None = 0.2
     max_wide_baseline_ratio: float = 0.45
     block_size: int = 5

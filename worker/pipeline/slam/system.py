@@ -11,11 +11,10 @@ ray angle, windowed bundle adjustment (the newest `ba_window` keyframes free, up
 scale), cull points that reproject badly, detect new corners, and densify the keyframes
 that have left the window with SGBM against the partner whose baseline is closest to
 `target_baseline_ratio` of the depth, and against a second one closest to
-`wide_baseline_ratio` (the DSM takes the wider pair's heights where it has them: the
-noise of a height falls as the baseline grows; the first pair overlaps more and fills
-the rest). SGBM runs in a worker thread beside the tracking
-(OpenCV releases the GIL): its inputs are fixed when it is queued, so the result does
-not depend on the timing.
+`wide_baseline_ratio` (the DSM takes the wider pair's heights where the two agree: the
+noise of a height falls as the baseline grows; the first pair keeps the rest). SGBM
+runs in a worker thread beside the tracking (OpenCV releases the GIL): its inputs are
+fixed when it is queued, so the result does not depend on the timing.
 
 When too few map points are tracked, the segment ends and a new one initialises from
 the current frame ("recovery": segments are placed on the ground independently by the
