@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from worker.pipeline.binned import binned_mean, nmad
 from worker.pipeline.slam.geometry import rotation_z90
 
 
@@ -184,16 +185,12 @@ def wide_pair_points(
         cell = cell.ravel()
         n_cells = int(cell.max()) + 1
     z = points[:, 2]
-    count_wide = np.bincount(cell[wide], minlength=n_cells)
-    count_narrow = np.bincount(cell[~wide], minlength=n_cells)
+    count_wide, mean_wide = binned_mean(z[wide], cell[wide], n_cells)
+    count_narrow, mean_narrow = binned_mean(z[~wide], cell[~wide], n_cells)
     both = (count_wide > 0) & (count_narrow > 0)
     use_wide = np.zeros(n_cells, dtype=bool)
     if both.any():
-        with np.errstate(invalid="ignore", divide="ignore"):
-            diff = np.bincount(cell[wide], weights=z[wide], minlength=n_cells) / count_wide
-            diff -= np.bincount(cell[~wide], weights=z[~wide], minlength=n_cells) / count_narrow
-        centre = float(np.median(diff[both]))
-        spread = 1.4826 * float(np.median(np.abs(diff[both] - centre)))
-        use_wide[both] = np.abs(diff[both] - centre) <= k * spread
+        diff = mean_wide[both] - mean_narrow[both]
+        use_wide[both] = np.abs(diff - np.median(diff)) <= k * nmad(diff)
     chosen = use_wide[cell]
     return np.where(wide, chosen, ~chosen)
