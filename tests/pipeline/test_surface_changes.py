@@ -185,3 +185,44 @@ def test_a_forested_slide_stays_a_landslide_when_judged_on_the_baseline():
         before, after = _judged(rasters, options)
         assert before == after, f"seed {seed}"
         assert LANDSLIDE in after
+
+
+def test_crowns_a_slide_took_join_it_as_far_as_the_baseline_joins_them():
+    """A slide's ground part and the clump of crowns it carried off, 7 m apart in the
+    default's regions: between them ground dropped 0.3 m, beyond the baseline's one LoD
+    but under a per-pixel LoD raised there (steep, rough ground). Judged alone the crowns
+    are felling, beyond the 5-m context; the baseline's region takes in both, so judged
+    on it the crowns join the slide, as the baseline's own rule joins them."""
+    rng = np.random.default_rng(7)
+    pre = rng.normal(0.0, SIGMA, SHAPE)
+    post = rng.normal(0.0, SIGMA, SHAPE)
+    ground_part = (slice(100, 160), slice(40, 100))  # 30 x 30 m, dropped 1.5 m
+    strip = (slice(100, 160), slice(100, 114))  # 7 m of ground dropped 0.3 m
+    crowns = (slice(100, 160), slice(114, 130))  # a clump of crowns 12 m tall, gone
+    post[ground_part] -= 1.5
+    post[strip] -= 0.3
+    pre[crowns] += 12.0
+    rasters = _rasters(pre, post)
+    rasters.lod = rasters.lod.copy()
+    rasters.lod[strip] = 1.0
+    rasters.significance[strip] = 0  # NO_CHANGE under the raised LoD
+    options = RegionOptions()
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    regions = [
+        describe_region(rasters, labels, k, w, options) for k, w in zip(keep, windows, strict=True)
+    ]
+    assert sorted(r.kind for r in regions) == [LANDSLIDE, SURFACE_CHANGE]
+    gap = next(r.geometry for r in regions if r.kind == LANDSLIDE).distance(
+        next(r.geometry for r in regions if r.kind == SURFACE_CHANGE)
+    )
+    assert 6.5 <= gap <= 7.5 and gap > options.object_context_m
+    alone, _ = split_surface_changes(regions, options)
+    assert len(alone) == 1  # the crowns read as felling
+
+    rasters.baseline = (0.0, LOD_Z * SIGMA)
+    judged = judge_by_baseline(rasters, labels, keep, windows, regions, options)
+    landslides, surface = split_surface_changes(judged, options)
+    assert len(landslides) == 2 and not surface
+    # Measured from the default's own regions, as before: the crowns stay felling.
+    own = judge_by_baseline(rasters, labels, keep, windows, regions, options, context=False)
+    assert len(split_surface_changes(own, options)[0]) == 1

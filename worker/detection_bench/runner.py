@@ -88,6 +88,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
     "threshold-noflanks": ("threshold", {"difference": {"flank_area_z": None}}),
     "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),
+    "threshold-owncontext": ("threshold", {"vectorize": {"context_by_baseline": False}}),
 }
 
 

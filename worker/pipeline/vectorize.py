@@ -60,6 +60,10 @@ class VectorizeOptions(RegionOptions):
     # (change_regions.judge_by_baseline): the default then sets aside whatever the
     # baseline does.
     surface_by_baseline: bool = True
+    # Measure the context rule (objects lost near a landslide join it) from the simple
+    # baseline's region around each region too (judge_by_baseline): the default then
+    # joins whatever the baseline does.
+    context_by_baseline: bool = True
 
 
 @dataclass
@@ -103,8 +107,17 @@ def vectorize(
         describe_region(rasters, labels, label, window, options)
         for label, window in zip(keep, windows, strict=True)
     ]
-    if options.surface_by_baseline:
-        regions = judge_by_baseline(rasters, labels, keep, windows, regions, options)
+    if options.surface_by_baseline or options.context_by_baseline:
+        regions = judge_by_baseline(
+            rasters,
+            labels,
+            keep,
+            windows,
+            regions,
+            options,
+            set_aside=options.surface_by_baseline,
+            context=options.context_by_baseline,
+        )
     landslides, surface = split_surface_changes(
         [r for r in regions if _volume_significant(r, options)], options
     )
