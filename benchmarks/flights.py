@@ -128,6 +128,9 @@ class FlightSettings:
     fps: float = 30.0
     video_seconds: tuple[float, float] = (20.0, 30.0)
     render_workers: int = 1
+    # A rolling-shutter flight's readout time is given to the pipeline, as a user who
+    # knows their camera gives it (False: not given, the shutter not modelled).
+    readout_given: bool = True
 
 
 @dataclass(frozen=True)
@@ -139,6 +142,7 @@ class FixedConditions:
     plan: str | None = None
     altitude_m: float | None = None
     plain: bool = False
+    rolling_shutter_s: float | None = None  # every flight's readout (0: a global shutter)
 
 
 def draw_conditions(
@@ -171,8 +175,17 @@ def draw_conditions(
         noise_sigma=round(float(rng.uniform(*NOISE_SIGMA)), 2),
     )
     if fixed.plain:
-        return replace(base, noise_sigma=RenderOptions().noise_sigma)
-    return _harder(base, rng_for(seed, "bench-flight-harder-conditions"))
+        drawn = replace(base, noise_sigma=RenderOptions().noise_sigma)
+    else:
+        drawn = _harder(base, rng_for(seed, "bench-flight-harder-conditions"))
+    if fixed.rolling_shutter_s is not None:
+        if not 0.0 <= fixed.rolling_shutter_s <= MAX_READOUT_S:
+            raise ValueError(
+                f"a rolling shutter's readout is 0 to {MAX_READOUT_S * 1000:.1f} ms at the "
+                f"benchmark's frame rate, not {fixed.rolling_shutter_s * 1000:g} ms"
+            )
+        drawn = replace(drawn, rolling_shutter_s=fixed.rolling_shutter_s)
+    return drawn
 
 
 def _harder(base: FlightConditions, rng: np.random.Generator) -> FlightConditions:
@@ -225,11 +238,15 @@ def simulation_options(cond: FlightConditions, settings: FlightSettings) -> Simu
     )
 
 
-def reconstruction_options(method: str, gnss: str) -> ReconstructionOptions:
-    """The options a user gives: the method, and for RTK logs the receiver's accuracy."""
+def reconstruction_options(method: str, gnss: str, readout_s: float = 0.0) -> ReconstructionOptions:
+    """The options a user gives: the method, for RTK logs the receiver's accuracy, and
+    for a rolling-shutter camera its readout time (as its maker or a measurement gives
+    it)."""
     options = ReconstructionOptions(method=method)
     if gnss == "rtk":
         options.georef.georef.position_sigma_m = RTK_SIGMA_M
+    if readout_s > 0:
+        options.camera.readout_ms = readout_s * 1000.0
     return options
 
 
@@ -240,7 +257,9 @@ def run_flight(
     simulation is kept in `work` and reused when the conditions are the same."""
     sim_dir = work / "sim"
     stamp = work / "conditions.json"
-    wanted = json.dumps({"conditions": cond.to_dict(), "settings": asdict(settings)})
+    # What the simulation depends on (not what is given to the pipeline).
+    simulated = {k: v for k, v in asdict(settings).items() if k != "readout_given"}
+    wanted = json.dumps({"conditions": cond.to_dict(), "settings": simulated})
     start = time.perf_counter()
     cached = (sim_dir / "manifest.json").is_file() and stamp.is_file()
     if not cached or stamp.read_text() != wanted:
@@ -254,11 +273,16 @@ def run_flight(
     manifest = Manifest.load(sim_dir / "manifest.json")
     survey = manifest.steps[0]["surveys"][0]
     record["flight"] = _flown(survey)
-    slam = _reconstruct(manifest, survey, work / "slam", "slam", cond.gnss)
+    readout = (
+        float((survey.get("rolling_shutter") or {}).get("readout_s", 0.0))
+        if settings.readout_given
+        else 0.0
+    )
+    slam = _reconstruct(manifest, survey, work / "slam", "slam", cond.gnss, readout)
     record["slam"] = slam
     record["success"] = slam["success"]
     if with_sfm:
-        sfm = _reconstruct(manifest, survey, work / "sfm", "sfm", cond.gnss)
+        sfm = _reconstruct(manifest, survey, work / "sfm", "sfm", cond.gnss, readout)
         record["sfm"] = {k: sfm[k] for k in ("success", "failure", "wall_seconds") if k in sfm}
         if slam["success"] and sfm["success"]:
             record["sfm_over_slam_wall_time"] = round(sfm["wall_seconds"] / slam["wall_seconds"], 2)
@@ -284,7 +308,12 @@ def _flown(survey: dict[str, Any]) -> dict[str, Any]:
 
 
 def _reconstruct(
-    manifest: Manifest, survey: dict[str, Any], run: Path, method: str, gnss: str
+    manifest: Manifest,
+    survey: dict[str, Any],
+    run: Path,
+    method: str,
+    gnss: str,
+    readout_s: float = 0.0,
 ) -> dict[str, Any]:
     """One reconstruction of the survey and its figures against the truth. A flight the
     pipeline turns down (InputError) is a failure with its message; so is any other
@@ -296,7 +325,8 @@ def _reconstruct(
     )
     start = time.perf_counter()
     try:
-        result = reconstruct_survey(inputs, run, reconstruction_options(method, gnss))
+        options = reconstruction_options(method, gnss, readout_s)
+        result = reconstruct_survey(inputs, run, options)
     except InputError as exc:
         return _failed("input_error", str(exc), start)
     except Exception as exc:  # reported per flight: see the docstring
@@ -325,11 +355,14 @@ def _against_truth(
     report = json.loads((run / "report.json").read_text())
     dsm = results["dsm"]["dsm"]
     pixel = float(dsm["resolution_m"])
-    as_georef = dsm_errors(run, truth_dsm)["measured"].get("nmad")
+    measured = dsm_errors(run, truth_dsm)["measured"]
+    as_georef, bias = measured.get("nmad"), measured.get("median")
     out: dict[str, Any] = {
         "dsm_pixel_m": pixel,
         "dsm_nmad_as_georeferenced_m": as_georef,
         "dsm_nmad_as_georeferenced_px": None if as_georef is None else round(as_georef / pixel, 2),
+        # The NMAD leaves out an offset common to the whole DSM; this is it (|median|).
+        "dsm_bias_as_georeferenced_px": None if bias is None else round(abs(bias) / pixel, 2),
         "completeness": dsm["completeness"],
         "trajectory": trajectory_errors(run, truth),
         "georeference": _georef_residuals(results["georeference"]),

@@ -32,15 +32,18 @@ def run(
     video: tuple[int, int, float] = (640, 360, 30.0),
     sfm_every: int = 5,
     fixed: FixedConditions | None = None,
+    readout_given: bool = True,
 ) -> dict[str, Any]:
     """Run the flights of `seeds` and write the report; returns it with its table.
-    `fixed`: what every flight holds the same instead of drawing it."""
+    `fixed`: what every flight holds the same instead of drawing it; `readout_given`:
+    a rolling-shutter flight's readout is given to the pipeline (FlightSettings)."""
     width, height, fps = video
     settings = FlightSettings(
         width=width,
         height=height,
         fps=fps,
         video_seconds=(video_seconds, video_seconds) if video_seconds else (20.0, 30.0),
+        readout_given=readout_given,
     )
     warm_imports()
     report: dict[str, Any] = {
@@ -53,6 +56,7 @@ def run(
             "height": height,
             "fps": fps,
             "video_seconds": list(settings.video_seconds),
+            "readout_given": readout_given,
             "fixed": asdict(fixed or FixedConditions()),
         },
         "targets": [t.__dict__ for t in TARGETS],

@@ -44,6 +44,7 @@ def _slam(key: str) -> Callable[[dict[str, Any]], float | None]:
 FIGURES = (
     Figure("dsm_nmad_as_georeferenced_px", _slam("dsm_nmad_as_georeferenced_px")),
     Figure("dsm_nmad_as_georeferenced_m", _slam("dsm_nmad_as_georeferenced_m")),
+    Figure("dsm_bias_as_georeferenced_px", _slam("dsm_bias_as_georeferenced_px")),
     Figure("dsm_nmad_coregistered_px", _slam("dsm_nmad_coregistered_px")),
     Figure("dsm_nmad_coregistered_m", _slam("dsm_nmad_coregistered_m")),
     Figure("completeness", _slam("completeness"), higher_is_better=True),
@@ -245,6 +246,7 @@ def by_condition(records: list[dict[str, Any]]) -> dict[str, Any]:
 # The figures the per-condition table prints (the JSON has them all).
 CONDITION_FIGURES = (
     "dsm_nmad_as_georeferenced_px",
+    "dsm_bias_as_georeferenced_px",
     "dsm_nmad_coregistered_px",
     "completeness",
     "trajectory_rmse_m",

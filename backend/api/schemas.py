@@ -196,7 +196,8 @@ class SourceSurveyCreate(BaseModel):
     options: dict[str, Any] | None = Field(
         default=None,
         description='Reconstruction options, e.g. {"method": "sfm"}, '
-        '{"camera": {"model": "FC6310"}}, {"time_offset_s": 1.5}, or an RTK drone\'s '
+        '{"camera": {"model": "FC6310"}}, a rolling-shutter video camera\'s readout '
+        '{"camera": {"readout_ms": 30}}, {"time_offset_s": 1.5}, or an RTK drone\'s '
         "position accuracy to check the georeference against: "
         '{"georef": {"georef": {"position_sigma_m": [0.02, 0.02, 0.04]}}}.',
     )

@@ -107,6 +107,20 @@ def load_benchmark(name: str) -> ModuleType:
     help="With --flights: no harder condition (cross, low sun, texture-poor, rolling "
     "shutter) and the simulator's own render noise.",
 )
+@click.option(
+    "--rolling-shutter",
+    "rolling_shutter_ms",
+    type=click.FloatRange(0.0, 33.0),
+    default=None,
+    help="With --flights: every flight's rolling-shutter readout in ms (0: a global "
+    "shutter; default: drawn with the harder conditions).",
+)
+@click.option(
+    "--no-readout",
+    is_flag=True,
+    help="With --flights: do not give a rolling-shutter flight's readout to the pipeline "
+    "(a user who does not know it); by default it is given, as the camera's.",
+)
 @click.pass_context
 def reconstruction(
     ctx: click.Context,
@@ -126,6 +140,8 @@ def reconstruction(
     plan: str | None,
     altitude: float | None,
     plain: bool,
+    rolling_shutter_ms: float | None,
+    no_readout: bool,
 ) -> None:
     """Wall time slam vs sfm, real-time factor, DSM, trajectory and georeferencing error."""
     if flights > 0:
@@ -136,7 +152,13 @@ def reconstruction(
             height = 360
         seeds = list(range(first_seed, first_seed + flights))
         flights_run = load_benchmark("flights_run")
-        fixed = flights_run.FixedConditions(gnss=gnss, plan=plan, altitude_m=altitude, plain=plain)
+        fixed = flights_run.FixedConditions(
+            gnss=gnss,
+            plan=plan,
+            altitude_m=altitude,
+            plain=plain,
+            rolling_shutter_s=None if rolling_shutter_ms is None else rolling_shutter_ms / 1000.0,
+        )
         report = flights_run.run(
             json_path,
             work_dir,
@@ -146,6 +168,7 @@ def reconstruction(
             (width, height, fps),
             sfm_every,
             fixed,
+            readout_given=not no_readout,
         )
         click.echo(report["table"])
         return

@@ -55,6 +55,13 @@ EXIT_INPUT_ERROR = 2
 @click.option("--fx", type=float, default=None, help="Focal length in pixels of the video.")
 @click.option("--hfov", type=float, default=None, help="Horizontal field of view, degrees.")
 @click.option(
+    "--readout-ms",
+    type=click.FloatRange(min=0.0),
+    default=None,
+    help="Video: the time over which the camera reads a frame's rows (rolling shutter, "
+    "10-35 ms on consumer drones); the slam method then models it.",
+)
+@click.option(
     "--time-offset",
     type=float,
     default=None,
@@ -97,6 +104,7 @@ def reconstruct(
     camera: str | None,
     fx: float | None,
     hfov: float | None,
+    readout_ms: float | None,
     time_offset: float | None,
     recording: int | None,
     position_sigma: tuple[float, float] | None,
@@ -106,7 +114,7 @@ def reconstruct(
 ) -> None:
     """Reconstruct a survey into a DSM; print a one-line JSON summary."""
     options = ReconstructionOptions(method=method, time_offset_s=time_offset, recording=recording)
-    options.camera = CameraOverride(model=camera, fx=fx, hfov_deg=hfov)
+    options.camera = CameraOverride(model=camera, fx=fx, hfov_deg=hfov, readout_ms=readout_ms)
     if fx is not None:
         options.camera.width = None
     options.frames.width, options.frames.height = width, height

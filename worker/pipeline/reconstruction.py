@@ -356,6 +356,7 @@ def ingest(
                 check_overlap(log, prior.offset_s, video.duration_s, video_name=name)
         out["time_offset_prior"] = prior.to_dict()
         out["warnings"] += prior.warnings
+        out["warnings"] += _rolling_shutter_notes(processing, video.fps, method, log)
     out["log"] = log.to_dict()
     out["warnings"] += log.warnings + intr.warnings
     out["crs"] = f"EPSG:{survey_epsg(log)}"
@@ -364,6 +365,39 @@ def ingest(
     _write_result(work_dir, result)
     progress(1.0)
     return result
+
+
+# A readout typical of consumer drone video (10-35 ms), for the warning's example.
+TYPICAL_READOUT_S = 0.03
+
+
+def _rolling_shutter_notes(intr: Intrinsics, fps: float, method: str, log: FlightLog) -> list[str]:
+    """Warnings on the video's rolling shutter: the readout given is checked against the
+    frame's length; where none is given, what a typical one would cost this flight
+    (slam/rolling_shutter.py: along the track, heights off by fy V readout / (H - 1))."""
+    readout = intr.readout_s
+    if fps > 0 and readout >= 1.0 / fps:
+        raise InputError(
+            f"the camera's readout_ms {readout * 1000:g} is not shorter than a frame "
+            f"({1000.0 / fps:.1f} ms at {fps:g} frames per second)"
+        )
+    if readout > 0:
+        if method == "slam":
+            return []
+        return [
+            f"the camera's readout of {readout * 1000:g} ms is not used: the {method} method "
+            "does not model a rolling shutter (the slam method does)"
+        ]
+    speed = log.median_ground_speed()
+    if method != "slam" or not np.isfinite(speed) or speed <= 0:
+        return []
+    off = intr.fy * speed * TYPICAL_READOUT_S / max(intr.height - 1, 1)
+    return [
+        f"the camera's readout time is not given (camera readout_ms): a rolling shutter is "
+        f"not modelled. Drone video is usually read row by row over 10-35 ms; at this "
+        f"flight's {speed:.1f} m/s a {TYPICAL_READOUT_S * 1000:.0f}-ms readout would put "
+        f"heights about {off:.2f} m off along the track"
+    ]
 
 
 def frames(

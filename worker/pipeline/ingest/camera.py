@@ -170,6 +170,9 @@ class CameraOverride:
     sensor_width_mm: float | None = None
     model: str | None = None
     distortion: tuple[float, ...] | None = None
+    # Video: the time over which a frame's rows are read (rolling shutter, top to
+    # bottom); 0 or None: a global shutter.
+    readout_ms: float | None = None
 
 
 @dataclass
@@ -187,6 +190,9 @@ class Intrinsics:
     warnings: list[str] = field(default_factory=list)
     # Nothing identified the camera: fx is an assumption that SfM should refine.
     focal_guess: bool = False
+    # Seconds over which a video frame's rows are read, top to bottom (0: a global
+    # shutter); the SLAM method moves what it measures to a global shutter's view.
+    readout_s: float = 0.0
 
     @property
     def K(self) -> np.ndarray:
@@ -215,6 +221,7 @@ class Intrinsics:
             source=self.source,
             warnings=list(self.warnings),
             focal_guess=self.focal_guess,
+            readout_s=self.readout_s,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -237,6 +244,7 @@ class Intrinsics:
             source=data.get("source", ""),
             warnings=list(data.get("warnings", [])),
             focal_guess=bool(data.get("focal_guess", False)),
+            readout_s=float(data.get("readout_s", 0.0)),
         )
 
 
@@ -286,6 +294,12 @@ def resolve_intrinsics(
             width, override, exif_model, exif_focal_mm, focal_35mm, exif_sensor_width_mm, warnings
         )
         fy = fx
+    readout_ms = override.readout_ms or 0.0
+    if not 0.0 <= readout_ms < 1000.0:
+        raise InputError(
+            f"the camera's readout_ms (a video frame's readout time) must be at least 0 and "
+            f"under 1000, not {readout_ms}"
+        )
     return Intrinsics(
         width=width,
         height=height,
@@ -297,6 +311,7 @@ def resolve_intrinsics(
         source=source,
         warnings=warnings,
         focal_guess=guess,
+        readout_s=readout_ms / 1000.0,
     )
 
 

@@ -77,6 +77,19 @@ class FlightLog:
     def duration_s(self) -> float:
         return float(self.t[-1] - self.t[0]) if len(self) else 0.0
 
+    def median_ground_speed(self) -> float:
+        """Median horizontal speed (m/s) between consecutive fixes (NaN without two);
+        metres from degrees on a sphere, plenty for a speed."""
+        ok = self.valid
+        t, lat, lon = self.t[ok], np.radians(self.lat[ok]), np.radians(self.lon[ok])
+        dt = np.diff(t)
+        step = dt > 0
+        if not step.any():
+            return float("nan")
+        north = np.diff(lat) * 6_371_000.0
+        east = np.diff(lon) * np.cos(lat[1:]) * 6_371_000.0
+        return float(np.median(np.hypot(east, north)[step] / dt[step]))
+
     @property
     def epoch(self) -> datetime | None:
         """Wall-clock time (naive, in `datetime_zone`) of t = 0, or None.

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from worker.pipeline.atomic import atomic_path
+from worker.pipeline.slam.rolling_shutter import FrameMotion
 from worker.pipeline.trajectory import Trajectory
 
 
@@ -54,6 +55,12 @@ class SparseMap:
     dense_partner: np.ndarray = field(default_factory=lambda: np.empty(0, np.int32))
     dense_xyz: np.ndarray = field(default_factory=lambda: np.empty((0, 3), np.float32))
     dense_baseline: np.ndarray = field(default_factory=lambda: np.empty(0))  # per point
+    # Rolling shutter: a frame's readout time, and per keyframe the camera's motion
+    # while it was read (slam/rolling_shutter.FrameMotion: omega, v_over_z; zeros where
+    # none was known). The observations and dense points are already moved to a global
+    # shutter's view; this is what moves a keyframe image read again (the ties).
+    readout_s: float = 0.0
+    kf_motion: np.ndarray = field(default_factory=lambda: np.empty((0, 6)))
     stats: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -109,6 +116,16 @@ class SparseMap:
     @property
     def segments(self) -> list[int]:
         return sorted(set(self.kf_segment.tolist()))
+
+    def keyframe_motion(self, index: int) -> FrameMotion | None:
+        """The camera's motion while keyframe `index` was read, where a rolling shutter
+        was modelled for it (None: a global shutter or no motion known)."""
+        if self.readout_s <= 0 or index >= len(self.kf_motion):
+            return None
+        row = np.asarray(self.kf_motion[index], dtype=np.float64)
+        if not row.any():
+            return None
+        return FrameMotion(omega=row[:3], v_over_z=row[3:])
 
     def kf_centres(self) -> np.ndarray:
         return -np.einsum("nji,nj->ni", self.kf_r, self.kf_tr)
@@ -229,7 +246,7 @@ class SparseMap:
         arrays = {
             name: getattr(self, name)
             for name in self.__dataclass_fields__
-            if name not in ("size", "stats")
+            if name not in ("size", "stats", "readout_s")
         }
         runs = [np.asarray(getattr(self, name)) for name in self._DENSE_RUN_FIELDS]
         n = len(self.dense_xyz)
@@ -244,7 +261,7 @@ class SparseMap:
                 arrays[f"{name}_run"] = r[starts]
         import json
 
-        meta = {"size": list(self.size), "stats": self.stats}
+        meta = {"size": list(self.size), "stats": self.stats, "readout_s": self.readout_s}
         with atomic_path(Path(path)) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays, meta=np.array(json.dumps(meta)))
 
@@ -260,4 +277,6 @@ class SparseMap:
             counts = np.diff(np.append(starts, len(kwargs["dense_xyz"])))
             for name in cls._DENSE_RUN_FIELDS:
                 kwargs[name] = np.repeat(kwargs.pop(f"{name}_run"), counts)
-        return cls(size=tuple(meta["size"]), stats=meta["stats"], **kwargs)
+        # The readout is in the meta (a file written field by field may hold it too).
+        readout = float(kwargs.pop("readout_s", meta.get("readout_s", 0.0)))
+        return cls(size=tuple(meta["size"]), stats=meta["stats"], readout_s=readout, **kwargs)

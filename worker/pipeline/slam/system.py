@@ -16,6 +16,13 @@ noise of a height falls as the baseline grows; the first pair keeps the rest). S
 runs in a worker thread beside the tracking (OpenCV releases the GIL): its inputs are
 fixed when it is queued, so the result does not depend on the timing.
 
+With the camera's readout time (`Intrinsics.readout_s`: a rolling shutter), every
+tracked point and keyframe image is moved to where a global shutter would have seen it
+(slam/rolling_shutter.py) before it is used: by the camera's motion over the last two
+posed frames, and for a segment's first pair by the motion that pair shows (its
+geometry is solved twice): the segment's scale is set there, and later keyframes moved
+by the rolling shutter's correction must agree with it.
+
 When too few map points are tracked, the segment ends and a new one initialises from
 the current frame ("recovery": segments are placed on the ground independently by the
 georeferencing, which needs no visual overlap between them).
@@ -39,6 +46,11 @@ from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
 from worker.pipeline.slam.densify import DensifyOptions, densify_pair
 from worker.pipeline.slam.geometry import camera_center, project, rays_world, triangulate_midpoint
 from worker.pipeline.slam.result import SparseMap
+from worker.pipeline.slam.rolling_shutter import (
+    FrameMotion,
+    global_shutter_image,
+    to_global_shutter,
+)
 from worker.pipeline.slam.tracker import KltTracker, TrackerOptions
 
 
@@ -81,6 +93,7 @@ class _Keyframe:
     uv: np.ndarray
     image: np.ndarray | None
     densified: bool = False
+    motion: FrameMotion | None = None  # while it was read (rolling shutter)
 
 
 @dataclass
@@ -139,6 +152,11 @@ class VisualSlam:
         self.ref: _Reference | None = None
         self.velocity: tuple[np.ndarray, np.ndarray] | None = None
         self.last_pose: tuple[np.ndarray, np.ndarray] | None = None
+        # Rolling shutter: the readout, the time of `last_pose` and the camera's motion
+        # over the last tracked frames (None until two frames of a segment are posed).
+        self.readout_s = float(intrinsics.readout_s)
+        self.last_t: float | None = None
+        self.motion: FrameMotion | None = None
         self.timing: dict[str, float] = {
             k: 0.0
             for k in (
@@ -176,13 +194,14 @@ class VisualSlam:
             self.timing["init"] += time.perf_counter() - t0
             return ok
         t0 = time.perf_counter()
-        pose = self._track_pose(ids, pts)
+        pose = self._track_pose(t, ids, pts)
         self.timing["pose"] += time.perf_counter() - t0
         if pose is None:
             self._lost(t, frame_index, gray)
             return False
         r, tr, tracked = pose
         self.counts["tracked_frames"] += 1
+        pts = self._global_shutter(pts)
         last = self.keyframes[-1]
         common, ia, ib = np.intersect1d(last.ids, ids, return_indices=True)
         parallax = (
@@ -234,17 +253,22 @@ class VisualSlam:
         parallax = float(np.median(np.linalg.norm(p1 - p0, axis=1)))
         if parallax < o.init_parallax_px:
             return False
-        e, mask = cv2.findEssentialMat(
-            p0, p1, self.k, method=cv2.USAC_MAGSAC, prob=0.999, threshold=1.0
-        )
-        if e is None or e.shape != (3, 3):
+        geometry = self._relative_geometry(p0, p1)
+        if geometry is None:
             return False
-        _, r, tvec, mask = cv2.recoverPose(e, p0, p1, self.k, mask=mask)
-        inl = mask.ravel() > 0
-        r0, t0 = np.eye(3), np.zeros(3)
-        t1 = tvec.ravel() / max(np.linalg.norm(tvec), 1e-12)
-        xyz, good, angle = self._two_view(r0, t0, r, t1, p0, p1)
-        good &= inl
+        motion = self._initial_motion(geometry, t - ref.t)
+        if motion is not None:
+            # Rolling shutter: the pair again, its points where a global shutter would
+            # have seen them, by the motion the pair itself shows (the segment's scale
+            # is set here: later keyframes, moved, must agree with these two).
+            moved = self._relative_geometry(
+                self._global_shutter(p0, motion), self._global_shutter(p1, motion)
+            )
+            if moved is not None:
+                geometry = moved
+            else:
+                motion = None
+        r, t1, xyz, good, angle = geometry
         if good.sum() < o.init_min_points or np.median(angle[good]) < o.init_min_angle_deg:
             if parallax > 4 * o.init_parallax_px:
                 self._set_reference(t, frame_index, gray)
@@ -255,10 +279,24 @@ class VisualSlam:
         self.point_ids, self.point_xyz = np.empty(0, np.int64), np.empty((0, 3))
         self.segment += 1
         self.segment_start = len(self.keyframes)
-        kf0 = self._new_keyframe(ref.t, ref.frame_index, r0, t0, ref.ids, ref.uv, ref.image)
+        r0, t0 = np.eye(3), np.zeros(3)
+        self.motion = motion
+        kf0 = self._new_keyframe(
+            ref.t,
+            ref.frame_index,
+            r0,
+            t0,
+            ref.ids,
+            self._global_shutter(ref.uv),
+            self._global_shutter_image(ref.image),
+        )
+        kf0.motion = motion
         self._record_frame(ref.t, r0, t0, True, kf0.index)
         self._add_points(common[good], xyz[good])
-        kf1 = self._new_keyframe(t, frame_index, r, t1, ids, pts, gray)
+        kf1 = self._new_keyframe(
+            t, frame_index, r, t1, ids, self._global_shutter(pts), self._global_shutter_image(gray)
+        )
+        kf1.motion = motion
         self._record_frame(t, r, t1, True, kf1.index)
         self._bundle(fix_all=True)
         self._cull([kf0.index, kf1.index])
@@ -266,9 +304,34 @@ class VisualSlam:
         self.state = "tracking"
         self.ref = None
         self.last_pose = (r.copy(), t1.copy())
+        self.last_t = t
         self.velocity = None
         self.events.append({"event": "initialised", "t": t, "segment": self.segment})
         return True
+
+    def _relative_geometry(self, p0: np.ndarray, p1: np.ndarray):
+        """The second view's pose relative to the first (essential matrix) and the
+        pair's points: (R, t of unit length, xyz, good mask, ray angle deg), or None."""
+        e, mask = cv2.findEssentialMat(
+            p0, p1, self.k, method=cv2.USAC_MAGSAC, prob=0.999, threshold=1.0
+        )
+        if e is None or e.shape != (3, 3):
+            return None
+        _, r, tvec, mask = cv2.recoverPose(e, p0, p1, self.k, mask=mask)
+        t1 = tvec.ravel() / max(np.linalg.norm(tvec), 1e-12)
+        xyz, good, angle = self._two_view(np.eye(3), np.zeros(3), r, t1, p0, p1)
+        return r, t1, xyz, good & (mask.ravel() > 0), angle
+
+    def _initial_motion(self, geometry, seconds: float) -> FrameMotion | None:
+        """The motion a new segment's first pair shows, where a rolling shutter is
+        modelled (the scene's depth: its points' median, in the first view)."""
+        r, t1, xyz, good, _ = geometry
+        if self.readout_s <= 0 or seconds <= 0 or not good.any():
+            return None
+        depth = float(np.median(xyz[good][:, 2]))
+        if depth <= 0:
+            return None
+        return FrameMotion.between(np.eye(3), np.zeros(3), r, t1, seconds, depth)
 
     def _two_view(self, ra, ta, rb, tb, uva, uvb):
         """Midpoint triangulation with checks: (xyz, good mask, ray angle deg)."""
@@ -302,7 +365,7 @@ class VisualSlam:
         """Positions of current-segment points given by id (all must exist)."""
         return self.point_xyz[np.searchsorted(self.point_ids, ids)]
 
-    def _track_pose(self, ids: np.ndarray, pts: np.ndarray):
+    def _track_pose(self, t: float, ids: np.ndarray, pts: np.ndarray):
         o = self.options
         pos = np.searchsorted(self.point_ids, ids)
         pos = np.clip(pos, 0, max(len(self.point_ids) - 1, 0))
@@ -310,13 +373,15 @@ class VisualSlam:
         if sel.sum() < o.pnp_min_points:
             return None
         obj = self.point_xyz[pos[sel]]
-        img = pts[sel].astype(np.float64)
+        seen = pts[sel].astype(np.float64)
         r_prev, t_prev = self.last_pose
         if self.velocity is not None:
             dr, dt = self.velocity
             r_pred, t_pred = dr @ r_prev, dr @ t_prev + dt
         else:
             r_pred, t_pred = r_prev, t_prev
+        # Rolling shutter: first by the last frames' motion, the predicted depths.
+        img = self._moved(seen, obj, r_pred, t_pred, self.motion)
         rvec, _ = cv2.Rodrigues(r_pred)
         tvec = t_pred.reshape(3, 1).copy()
         ok, rvec, tvec = cv2.solvePnP(
@@ -351,6 +416,21 @@ class VisualSlam:
         inl = self._inliers(obj, img, rvec, tvec)
         if inl.sum() < o.pnp_min_points:
             return None
+        if self.readout_s > 0 and self.last_t is not None and t > self.last_t:
+            # ... then again by the motion this frame's pose shows (a turn's start
+            # is not in the last frames' motion), and the pose refined on them.
+            r = cv2.Rodrigues(rvec)[0]
+            depth = float(np.median((obj[inl] @ r.T + tvec.ravel())[:, 2]))
+            if depth > 0:
+                motion = FrameMotion.between(
+                    r_prev, t_prev, r, tvec.ravel(), t - self.last_t, depth
+                )
+                img = self._moved(seen, obj, r, tvec.ravel(), motion)
+                rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.k, None, rvec, tvec)
+                inl = self._inliers(obj, img, rvec, tvec)
+                if inl.sum() < o.pnp_min_points:
+                    return None
+                self.motion = motion
         bad_ids = ids[sel][~inl]
         if len(bad_ids):
             self.tracker.remove(bad_ids)
@@ -358,7 +438,24 @@ class VisualSlam:
         tr = tvec.ravel()
         self.velocity = (r @ r_prev.T, tr - (r @ r_prev.T) @ t_prev)
         self.last_pose = (r, tr)
+        self.last_t = t
         return r, tr, int(inl.sum())
+
+    def _moved(
+        self,
+        seen: np.ndarray,
+        obj: np.ndarray,
+        r: np.ndarray,
+        tr: np.ndarray,
+        motion: FrameMotion | None,
+    ) -> np.ndarray:
+        """Map points' observations where a global shutter would have seen them, each
+        by its own depth under the pose (r, tr)."""
+        if self.readout_s <= 0 or motion is None:
+            return seen
+        depth = (obj @ r.T + tr)[:, 2]
+        scale = np.clip(np.median(depth) / np.maximum(depth, 1e-9), 0.5, 2.0)
+        return to_global_shutter(seen, self.k, self.size[1], self.readout_s, motion, scale)
 
     def _inliers(self, obj, img, rvec, tvec) -> np.ndarray:
         proj, _ = cv2.projectPoints(obj, rvec, tvec, self.k, None)
@@ -370,7 +467,9 @@ class VisualSlam:
         self._densify(final=True)
         self.state = "init"
         self.last_pose = None
+        self.last_t = None
         self.velocity = None
+        self.motion = None
         self._set_reference(t, frame_index, gray)
 
     # -- keyframes ------------------------------------------------------------------------
@@ -398,7 +497,10 @@ class VisualSlam:
         self.frames.append(_Frame(t, self.segment, r.copy(), tr.copy(), is_kf, ref, rel_r, rel_t))
 
     def _add_keyframe(self, t, frame_index, gray, r, tr) -> None:
-        kf = self._new_keyframe(t, frame_index, r, tr, self.tracker.ids, self.tracker.pts, gray)
+        uv = self._global_shutter(self.tracker.pts)
+        image = self._global_shutter_image(gray)
+        kf = self._new_keyframe(t, frame_index, r, tr, self.tracker.ids, uv, image)
+        kf.motion = self.motion
         self._record_frame(t, r, tr, True, kf.index)
         self._triangulate(kf)
         window = self._bundle()
@@ -412,7 +514,22 @@ class VisualSlam:
     def _detect_into(self, kf: _Keyframe, gray: np.ndarray) -> None:
         self.tracker.detect(gray)
         kf.ids = self.tracker.ids.copy()
-        kf.uv = self.tracker.pts.astype(np.float64)
+        kf.uv = self._global_shutter(self.tracker.pts)
+
+    def _global_shutter(self, uv: np.ndarray, motion: FrameMotion | None = None) -> np.ndarray:
+        """Tracked points (the current frame's) where a global shutter would have seen
+        them, by `motion` or else the motion of the last frames (as tracked: none known
+        yet, or a global shutter)."""
+        motion = motion or self.motion
+        if self.readout_s <= 0 or motion is None:
+            return np.asarray(uv, dtype=np.float64)
+        return to_global_shutter(uv, self.k, self.size[1], self.readout_s, motion)
+
+    def _global_shutter_image(self, image: np.ndarray) -> np.ndarray:
+        """The current frame's image as a global shutter would have taken it."""
+        if self.readout_s <= 0 or self.motion is None:
+            return image
+        return global_shutter_image(image, self.k, self.readout_s, self.motion)
 
     def _segment_keyframes(self) -> list[_Keyframe]:
         return self.keyframes[self.segment_start :]
@@ -613,6 +730,8 @@ class VisualSlam:
             kf_t=stack([kf.t for kf in kfs], (0,), np.float64),
             kf_r=stack([kf.r for kf in kfs], (0, 3, 3), np.float64),
             kf_tr=stack([kf.tr for kf in kfs], (0, 3), np.float64),
+            readout_s=self.readout_s,
+            kf_motion=stack([_motion_row(kf.motion) for kf in kfs], (0, 6), np.float64),
             obs_kf=np.concatenate(obs_kf) if obs_kf else np.empty(0, np.int32),
             obs_point=np.concatenate(obs_pt) if obs_pt else np.empty(0, np.int64),
             obs_uv=np.concatenate(obs_uv) if obs_uv else np.empty((0, 2), np.float32),
@@ -643,6 +762,13 @@ class VisualSlam:
             else np.empty(0),
             stats=stats,
         )
+
+
+def _motion_row(motion: FrameMotion | None) -> np.ndarray:
+    """A keyframe's motion as SparseMap.kf_motion stores it (zeros: none known)."""
+    if motion is None:
+        return np.zeros(6)
+    return np.concatenate([motion.omega, motion.v_over_z])
 
 
 def run_slam(

@@ -28,6 +28,7 @@ import numpy as np
 
 from worker.pipeline.ingest.video import VideoFrame
 from worker.pipeline.slam.result import SparseMap
+from worker.pipeline.slam.rolling_shutter import global_shutter_image
 
 
 @dataclass
@@ -53,14 +54,21 @@ class TieReport:
 
 
 def keyframe_images(sparse: SparseMap, frames: Iterable[VideoFrame]) -> dict[int, np.ndarray]:
-    """The grey image of every keyframe (by index), picked by time from `frames`."""
+    """The grey image of every keyframe (by index), picked by time from `frames`, as a
+    global shutter would have taken it where the map models a rolling shutter (its
+    observations are)."""
     images: dict[int, np.ndarray] = {}
     times = sparse.kf_t
     for frame in frames:
         j = int(np.searchsorted(times, frame.t))
         for candidate in (j - 1, j):
             if 0 <= candidate < times.size and abs(times[candidate] - frame.t) < 1e-4:
-                images[candidate] = frame.image
+                motion = sparse.keyframe_motion(candidate)
+                images[candidate] = (
+                    frame.image
+                    if motion is None
+                    else global_shutter_image(frame.image, sparse.k, sparse.readout_s, motion)
+                )
     return images
 
 
