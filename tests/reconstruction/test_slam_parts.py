@@ -389,6 +389,27 @@ def _straight_line_flight(terrain, readout_s: float = 0.0):
     return r, centres, frames, intr, options
 
 
+def _dense_height_errors(terrain, sparse, r, centres):
+    """The straight-line flight's dense heights minus the terrain's, and which dense
+    points fell on it: cameras on a straight line leave the roll about it free, so the
+    map is put on the ground by the first keyframe's known attitude, its scale and
+    offset fitted to the flown centres (within 0.3 m)."""
+    grid, dsm, _ = terrain
+    traj = sparse.trajectory(0)
+    truth = centres[np.rint(traj.t * 10).astype(int)]
+    world_from_map = r @ sparse.kf_r[0]
+    placed = traj.positions @ world_from_map.T
+    d_placed, d_truth = placed - placed.mean(axis=0), truth - truth.mean(axis=0)
+    scale = float(np.sum(d_placed * d_truth) / np.sum(d_placed**2))
+    offset = truth.mean(axis=0) - scale * placed.mean(axis=0)
+    assert np.abs(scale * placed + offset - truth).max() < 0.3
+    points = scale * sparse.dense_points() @ world_from_map.T + offset
+    col, row = grid.col_row(points[:, 0], points[:, 1])
+    col, row = np.rint(col).astype(int), np.rint(row).astype(int)
+    inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
+    return points[inside, 2] - dsm[row[inside], col[inside]], inside
+
+
 def test_densification_in_the_worker_thread_is_repeatable(terrain):
     """SGBM runs beside the tracking; its inputs are fixed when queued, so two runs give
     the same dense cloud."""
@@ -410,24 +431,9 @@ def test_a_wider_second_pair_gives_quieter_heights(terrain):
     (a height's noise falls as the baseline grows)."""
     from worker.pipeline.slam.system import run_slam
 
-    grid, dsm, _ = terrain
     r, centres, frames, intr, options = _straight_line_flight(terrain)
     sparse = run_slam(frames, intr, options)
-    # Cameras on a straight line leave the roll about it free: the map is put on the
-    # ground by the first keyframe's known attitude, its scale and offset fitted.
-    traj = sparse.trajectory(0)
-    truth = centres[np.rint(traj.t * 10).astype(int)]
-    world_from_map = r @ sparse.kf_r[0]
-    placed = traj.positions @ world_from_map.T
-    d_placed, d_truth = placed - placed.mean(axis=0), truth - truth.mean(axis=0)
-    scale = float(np.sum(d_placed * d_truth) / np.sum(d_placed**2))
-    offset = truth.mean(axis=0) - scale * placed.mean(axis=0)
-    assert np.abs(scale * placed + offset - truth).max() < 0.3
-    points = scale * sparse.dense_points() @ world_from_map.T + offset
-    col, row = grid.col_row(points[:, 0], points[:, 1])
-    col, row = np.rint(col).astype(int), np.rint(row).astype(int)
-    inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
-    error = points[inside, 2] - dsm[row[inside], col[inside]]
+    error, inside = _dense_height_errors(terrain, sparse, r, centres)
     is_wide = sparse.dense_wide_pair()[inside]
     ratio = (sparse.dense_baseline / sparse.dense_xyz[:, 2])[inside]
     wide, narrow = error[is_wide], error[~is_wide]
@@ -493,21 +499,9 @@ def test_a_rolling_shutter_flight_gives_true_heights_when_its_readout_is_given(
 
     from worker.pipeline.slam.system import run_slam
 
-    grid, dsm, _ = terrain
     r, centres, frames, intr, options = _straight_line_flight(terrain, readout_s=0.03)
     sparse = run_slam(frames, replace(intr, readout_s=0.03 if readout_given else 0.0), options)
-    traj = sparse.trajectory(0)
-    truth = centres[np.rint(traj.t * 10).astype(int)]
-    world_from_map = r @ sparse.kf_r[0]
-    placed = traj.positions @ world_from_map.T
-    d_placed, d_truth = placed - placed.mean(axis=0), truth - truth.mean(axis=0)
-    scale = float(np.sum(d_placed * d_truth) / np.sum(d_placed**2))
-    offset = truth.mean(axis=0) - scale * placed.mean(axis=0)
-    points = scale * sparse.dense_points() @ world_from_map.T + offset
-    col, row = grid.col_row(points[:, 0], points[:, 1])
-    col, row = np.rint(col).astype(int), np.rint(row).astype(int)
-    inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
-    error = points[inside, 2] - dsm[row[inside], col[inside]]
+    error, _ = _dense_height_errors(terrain, sparse, r, centres)
     assert error.size > 20_000
     if readout_given:
         assert abs(np.median(error)) < 0.1
