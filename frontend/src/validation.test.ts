@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { checkDsmFile, checkImageSet, checkVideoSurvey } from "./validation";
+import { checkDsmFile, checkImageSet, checkReadoutMs, checkVideoSurvey } from "./validation";
 
 const TIFF = new Uint8Array([0x49, 0x49, 0x2a, 0x00]);
 const PNG = new Uint8Array([0x89, 0x50, 0x4e, 0x47]);
@@ -25,6 +25,19 @@ describe("before the upload", () => {
     expect(checkVideoSurvey(null, { name: "notes.docx", size: 5 }, 100)).toEqual([
       "Choose the video (.mp4 or .mov).",
       "notes.docx is not a flight log: use the .srt or .csv of the flight.",
+    ]);
+  });
+
+  it("takes a camera's readout time in milliseconds, or none", () => {
+    expect(checkReadoutMs("")).toEqual([null, null]);
+    expect(checkReadoutMs(" 30 ")).toEqual([null, 30]);
+    expect(checkReadoutMs("16.5")).toEqual([null, 16.5]);
+    expect(checkReadoutMs("-2")[0]).toBe(
+      "The camera's readout time is a number of milliseconds from 0 up to a frame's length (e.g. 30), not -2.",
+    );
+    expect(checkReadoutMs("fast")).toEqual([
+      "The camera's readout time is a number of milliseconds from 0 up to a frame's length (e.g. 30), not fast.",
+      null,
     ]);
   });
 

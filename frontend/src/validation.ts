@@ -65,6 +65,17 @@ export function checkImageSet(images: FileLike[], maxBytes: number): string[] {
   return problems;
 }
 
+/** The camera's readout time (a rolling shutter) as typed: empty is "not known";
+ * otherwise milliseconds, at least 0 and under a second (the server checks it against
+ * the video's frame length). Returns [problem, value]. */
+export function checkReadoutMs(text: string): [string | null, number | null] {
+  const trimmed = text.trim();
+  if (!trimmed) return [null, null];
+  const value = Number(trimmed);
+  if (!Number.isFinite(value) || value < 0 || value >= 1000) return [t("check.readoutMs", { value: trimmed }), null];
+  return [null, value];
+}
+
 export function checkCapturedAt(wall: string): string | null {
   if (!wall) return t("check.whenFlown");
   return null;

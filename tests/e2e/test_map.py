@@ -612,6 +612,15 @@ def test_a_video_survey_is_processed_while_it_uploads(
     page.get_by_label("Flight log (.srt or .csv)").set_input_files(str(srt))
     page.get_by_label("Survey name").fill("After the storm")
     page.get_by_label(re.compile(r"^Flown at")).fill("2026-07-03T09:00")
+    # The camera's readout (a rolling shutter) is checked before anything is sent.
+    readout = page.get_by_label(re.compile(r"^Camera readout time in ms"))
+    readout.fill("-3")
+    page.get_by_role("button", name="Upload", exact=True).click()
+    expect(page.locator("#upload-errors")).to_contain_text(
+        "The camera's readout time is a number of milliseconds from 0 up to a frame's length"
+    )
+    assert not requests
+    readout.fill("20")
     page.get_by_role("button", name="Upload", exact=True).click()
     expect(page.locator("#upload-status")).to_contain_text("being reconstructed", timeout=60_000)
     job = page.locator(".job").first
@@ -640,7 +649,10 @@ def test_a_video_survey_is_processed_while_it_uploads(
     # Its quality verdict as the API answers it: a survey that missed its bounds (the
     # simulated 6 s pass measures too little of its overlap) is marked in its row with
     # the first failed check, every check one click away; one that met them is not.
-    quality = api_survey(page, app_server, "South slope", "After the storm")["quality"]
+    answer = api_survey(page, app_server, "South slope", "After the storm")
+    # The readout given went with the survey: no warning that it is not modelled.
+    assert not [w for w in answer["warnings"] if "readout" in w], answer["warnings"]
+    quality = answer["quality"]
     failed = [c["message"] for c in quality["checks"] if not c["passed"]]
     mark = survey.locator(".survey-quality")
     if failed:

@@ -7,7 +7,7 @@ import { faststart } from "../faststart";
 import { type MessageKey, serverText, t } from "../i18n";
 import type { Job, MapConfig, Site, Survey, SurveyFile, UnfinishedUpload } from "../types";
 import { cancelUpload, createUpload, forgetUpload, type RunningUpload, startUpload } from "../upload";
-import { checkCapturedAt, checkDsmFile, checkImageSet, checkVideoSurvey, MIN_IMAGES } from "../validation";
+import { checkCapturedAt, checkDsmFile, checkImageSet, checkReadoutMs, checkVideoSurvey, MIN_IMAGES } from "../validation";
 import { fileWarningsHtml } from "../warnings";
 
 type Kind = "dsm" | "video" | "images";
@@ -65,6 +65,8 @@ export class UploadPanel {
           <input id="video-file" type="file" accept=".mp4,.mov,video/*">
           <label for="log-file">${t("upload.logFile")}</label>
           <input id="log-file" type="file" accept=".srt,.csv,.txt">
+          <label for="readout-ms">${t("upload.readoutMs")}</label>
+          <input id="readout-ms" type="number" min="0" step="0.1" inputmode="decimal">
         </div>
         <div data-kind="images" hidden>
           <label for="image-files">${t("upload.imageFiles", { min: MIN_IMAGES })}</label>
@@ -267,6 +269,8 @@ export class UploadPanel {
       else problems.push(...checkDsmFile(file, new Uint8Array(await file.slice(0, 4).arrayBuffer()), max));
     } else if (kind === "video") {
       problems.push(...checkVideoSurvey(this.files("video-file")[0] ?? null, this.files("log-file")[0] ?? null, max));
+      const [readoutProblem] = checkReadoutMs((this.$("#readout-ms") as HTMLInputElement).value);
+      if (readoutProblem) problems.push(readoutProblem);
     } else {
       problems.push(...checkImageSet(this.files("image-files"), max));
     }
@@ -373,10 +377,13 @@ export class UploadPanel {
       const resumable = survey?.status === "receiving" || (kind === "video" && survey?.status !== "ready");
       if (!resumable) survey = null;
     }
+    // A rolling shutter's readout, where the user knows it: the slam method models it.
+    const [, readoutMs] = kind === "video" ? checkReadoutMs((this.$("#readout-ms") as HTMLInputElement).value) : [null, null];
     survey ??= await postJson<Survey>(`sites/${this.site.id}/surveys/sources`, {
       kind,
       name: name || files[0].file.name,
       captured_at: capturedAt,
+      ...(readoutMs === null ? {} : { options: { camera: { readout_ms: readoutMs } } }),
     });
     localStorage.setItem(key, String(survey.id));
     this.onSurvey(survey.id);

@@ -266,6 +266,7 @@ export const messages = {
   "upload.dsmFile": "DSM (.tif, with its CRS)",
   "upload.videoFile": "Video (.mp4 or .mov)",
   "upload.logFile": "Flight log (.srt or .csv)",
+  "upload.readoutMs": "Camera readout time in ms (rolling shutter, e.g. 30; leave empty if not known)",
   "upload.imageFiles": "Geotagged photos (.jpg, at least {min})",
   "upload.surveyName": "Survey name",
   "upload.surveyNamePlaceholder": "e.g. After the storm",
@@ -317,6 +318,7 @@ export const messages = {
   "check.notJpeg": "{file} is not a JPEG photo.",
   "check.sameName": "Two photos have the same name: {names}.",
   "check.whenFlown": "Say when the survey was flown.",
+  "check.readoutMs": "The camera's readout time is a number of milliseconds from 0 up to a frame's length (e.g. 30), not {value}.",
 
   "warnings.fileReadWith": "{file} was read with {warnings}:",
   "warnings.surveyReadWith": "Read with {warnings}: what was skipped or assumed",

@@ -259,6 +259,7 @@ const messages: Messages = {
   "upload.dsmFile": "DSM（.tif、座標参照系付き）",
   "upload.videoFile": "動画（.mp4 または .mov）",
   "upload.logFile": "フライトログ（.srt または .csv）",
+  "upload.readoutMs": "カメラの読み出し時間（ms、ローリングシャッター。例：30。不明なら空欄）",
   "upload.imageFiles": "位置情報付き写真（.jpg、{min} 枚以上）",
   "upload.surveyName": "測量の名称",
   "upload.surveyNamePlaceholder": "例：豪雨後",
@@ -310,6 +311,7 @@ const messages: Messages = {
   "check.notJpeg": "{file} は JPEG 写真ではありません。",
   "check.sameName": "同じ名前の写真が 2 枚あります：{names}。",
   "check.whenFlown": "測量の撮影日時を入力してください。",
+  "check.readoutMs": "カメラの読み出し時間は 0 から 1 フレームの長さまでのミリ秒の数値です（例：30）。{value} は使えません。",
 
   "warnings.fileReadWith": "{file} の読み込みで {warnings}がありました：",
   "warnings.surveyReadWith": "読み込みで {warnings}：省略・仮定した内容",
