@@ -356,7 +356,8 @@ def ingest(
                 check_overlap(log, prior.offset_s, video.duration_s, video_name=name)
         out["time_offset_prior"] = prior.to_dict()
         out["warnings"] += prior.warnings
-        out["warnings"] += _rolling_shutter_notes(processing, video.fps, method, log)
+        _check_readout(processing, video.fps)
+        out["warnings"] += _rolling_shutter_notes(processing, method, log)
     out["log"] = log.to_dict()
     out["warnings"] += log.warnings + intr.warnings
     out["crs"] = f"EPSG:{survey_epsg(log)}"
@@ -371,16 +372,20 @@ def ingest(
 TYPICAL_READOUT_S = 0.03
 
 
-def _rolling_shutter_notes(intr: Intrinsics, fps: float, method: str, log: FlightLog) -> list[str]:
-    """Warnings on the video's rolling shutter: the readout given is checked against the
-    frame's length; where none is given, what a typical one would cost this flight
-    (slam/rolling_shutter.py: along the track, heights off by fy V readout / (H - 1))."""
-    readout = intr.readout_s
-    if fps > 0 and readout >= 1.0 / fps:
+def _check_readout(intr: Intrinsics, fps: float) -> None:
+    """A frame's rows are read within the frame: a longer readout is a mistake."""
+    if fps > 0 and intr.readout_s >= 1.0 / fps:
         raise InputError(
-            f"the camera's readout_ms {readout * 1000:g} is not shorter than a frame "
+            f"the camera's readout_ms {intr.readout_s * 1000:g} is not shorter than a frame "
             f"({1000.0 / fps:.1f} ms at {fps:g} frames per second)"
         )
+
+
+def _rolling_shutter_notes(intr: Intrinsics, method: str, log: FlightLog) -> list[str]:
+    """Warnings on the video's rolling shutter: a readout the method does not use, or,
+    where none is given, what a typical one would cost this flight
+    (slam/rolling_shutter.py: along the track, heights off by fy V readout / (H - 1))."""
+    readout = intr.readout_s
     if readout > 0:
         if method == "slam":
             return []

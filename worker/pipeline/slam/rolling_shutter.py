@@ -11,11 +11,13 @@ frame, depth Z) is seen displaced by delta * (Omega x X - V). Projected, a pixel
 
 (xn, yn the normalised image point), to first order: over a readout of tens of
 milliseconds a drone turns and moves little. Only V / Z enters, so the map's arbitrary
-scale does not matter; Z is the scene's median depth in the frame (the relief's share of
-the depth is the correction's relative error). Along the flight (rows along the track)
-the motion scales the image along the track, so a stereo pair's depths are all off by
-about f V readout / (H - 1): 14 cm at 4 m/s with a 30-ms readout and a 74-degree lens,
-of opposite sign on lines flown the other way.
+scale does not matter; Z is each map point's own depth where the SLAM knows it, else the
+scene's median depth in the frame (the relief's share of the depth is then the
+correction's relative error). Along the flight (rows along the track) the motion scales
+the image along the track, so a stereo pair's depths are all off by about
+f V readout / (H - 1): 14 cm at 4 m/s with a 30-ms readout and a 74-degree lens, of the
+same sign on every line where the drone turns at the line's end, of opposite sign on a
+line flown backwards.
 """
 
 from __future__ import annotations
