@@ -82,13 +82,16 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 # worse than is the LoD method with one NMAD for the whole raster and no volume test;
 # "threshold-nofloor" is the per-pixel LoD alone (what the default's floor at the
 # baseline's LoD costs), "threshold-noflanks" the floor without the flanks that join
-# significant change, "threshold-novolume" the default without its volume test.
+# significant change, "threshold-novolume" the default without its volume test,
+# "threshold-owncontext" the context rule measured from the default's own regions,
+# "threshold-nocut" the default without the vegetation-cut rule.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-uniform": ("threshold", BASELINE_OPTIONS),
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
     "threshold-noflanks": ("threshold", {"difference": {"flank_area_z": None}}),
     "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),
     "threshold-owncontext": ("threshold", {"vectorize": {"context_by_baseline": False}}),
+    "threshold-nocut": ("threshold", {"vectorize": {"cut_new_texture_ratio": None}}),
 }
 
 

@@ -24,6 +24,11 @@ counts as moved beyond 1.5 times its LoD: a tree-sized region has a handful of g
 pixels around it, where passing the LoD itself is too often chance. Objects lost beside
 a landslide region are part of it (`split_surface_changes`); for the default, "beside"
 is measured on the simple baseline's larger regions around both (`judge_by_baseline`).
+
+Low vegetation cut (grass mown, a crop harvested) is surface change too: a loss region
+that holds no deposit, whose fine texture the post survey lost without gaining new, no
+deeper than that texture says the sward was (vegetation_cut.py). It joins a landslide
+beside it only when that landslide's gain holds half its loss (a scar and its deposit).
 """
 
 from __future__ import annotations
@@ -57,9 +62,13 @@ from worker.pipeline.error_model import ErrorModel, VariogramModel
 from worker.pipeline.errors import InputError
 from worker.pipeline.geo import to_wgs84_geojson
 from worker.pipeline.raster_io import read_elevation
+from worker.pipeline.vegetation_cut import cut_texture, is_vegetation_cut
 
 SURFACE_CHANGE = "surface-change"
 LANDSLIDE = "landslide"
+# Why a region is a surface change.
+OBJECTS = "objects"  # tall objects appeared or vanished (trees, buildings)
+VEGETATION_CUT = "vegetation-cut"  # low vegetation cut (vegetation_cut.py)
 
 
 @dataclass
@@ -98,6 +107,26 @@ class RegionOptions:
     # grow everywhere). 5 m: chosen on training seeds, where it found the slide 10 m did
     # with fewer false alarms. 0 turns the rule off.
     object_context_m: float = 5.0
+    # Low vegetation cut (grass mown, a crop harvested; vegetation_cut.py): a loss region
+    # whose gain is at most `cut_gain_share` of its volume, shallower than a tall object,
+    # whose new fine texture is under `cut_new_texture_ratio` times the texture it lost,
+    # and whose depth is under `cut_depth_texture_ratio` standard deviations of that lost
+    # texture; texture: the DSMs high-passed at `cut_texture_m`, judged only where a pixel
+    # is no larger. 0.7 and 10: the loosest values tried that lost no slide on the
+    # training seeds 0-11 of the pair generators (docs/significance.md, *Grass mown
+    # between surveys*), where a scale of 0.3 m lost one. None turns the rule off.
+    cut_new_texture_ratio: float | None = 0.7
+    cut_depth_texture_ratio: float = 10.0
+    cut_gain_share: float = 0.2
+    cut_texture_m: float = 0.2
+    # ... and that holds no deposit: no significant gain in one piece of the minimum
+    # region's size holding this share of its loss.
+    cut_inner_deposit_share: float = 0.05
+    # ... and where tall objects stand on at most this share of it.
+    cut_object_share: float = 0.05
+    # A cut joins a landslide region within object_context_m only when their gain holds
+    # this share of its loss: a scar and the deposit its material went to.
+    cut_deposit_share: float = 0.5
 
 
 @dataclass
@@ -272,6 +301,7 @@ class Region:
     properties: dict[str, Any]
     traits: dict[str, float]
     kind: str  # LANDSLIDE or SURFACE_CHANGE
+    cause: str | None = None  # a surface change's: OBJECTS or VEGETATION_CUT
     # What the context rule measures distances from (split_surface_changes): the
     # region's own polygon (None) or one that takes in the baseline's region around it.
     reach: Any = None
@@ -297,11 +327,15 @@ def split_surface_changes(
     context = options.object_context_m
     if context > 0 and landslides and len(landslides) < len(regions):
         index = shapely.STRtree([r.extent for r in landslides])
+
+        def near(region: Region) -> list[Region]:
+            return [landslides[i] for i in index.query(region.extent, "dwithin", context)]
+
         regions = [
-            replace(r, kind=LANDSLIDE)
+            replace(r, kind=LANDSLIDE, cause=None)
             if r.kind == SURFACE_CHANGE
             and r.properties["volume_loss_m3"] > r.properties["volume_gain_m3"]
-            and index.query(r.extent, predicate="dwithin", distance=context).size
+            and _joins(r, near(r), options)
             else r
             for r in regions
         ]
@@ -309,6 +343,19 @@ def split_surface_changes(
         [r for r in regions if r.kind != SURFACE_CHANGE],
         [r for r in regions if r.kind == SURFACE_CHANGE],
     )
+
+
+def _joins(surface: Region, near: list[Region], options: RegionOptions) -> bool:
+    """Whether a surface change lost beside these landslide regions is part of them:
+    lost objects always (the trees a slide carried off); a vegetation cut only when
+    their gain holds `cut_deposit_share` of its loss (a scar beside its deposit), since
+    mown grass lies beside whatever else changed."""
+    if not near:
+        return False
+    if surface.cause != VEGETATION_CUT:
+        return True
+    gain = sum(r.properties["volume_gain_m3"] for r in near)
+    return gain >= options.cut_deposit_share * surface.properties["volume_loss_m3"]
 
 
 def judge_by_baseline(
@@ -350,7 +397,7 @@ def judge_by_baseline(
     )
     del changed
     base_windows = ndimage.find_objects(base_labels)
-    kinds: dict[int, str] = {}
+    kinds: dict[int, tuple[str, str | None]] = {}
     out = []
     for region, label, window in zip(regions, keep, windows, strict=True):
         under = base_labels[window][labels[window] == label]
@@ -359,19 +406,19 @@ def judge_by_baseline(
             out.append(region)
             continue
         base = int(np.bincount(under).argmax())
-        kind = region.kind
+        kind, cause = region.kind, region.cause
         if set_aside and kind != SURFACE_CHANGE:
             if base not in kinds:
                 kinds[base] = _baseline_kind(
                     rasters, base_labels, base, base_windows[base - 1], centred, lod95, options
                 )
-            kind = kinds[base]
+            kind, cause = kinds[base]
         reach = region.reach
         if context:
             win = base_windows[base - 1]
             outline = region_polygon(base_labels[win] == base, _window_transform(win, rasters))
             reach = shapely.union(region.geometry, outline)
-        out.append(replace(region, kind=kind, reach=reach))
+        out.append(replace(region, kind=kind, cause=cause, reach=reach))
     return out
 
 
@@ -417,15 +464,21 @@ def _baseline_kind(
     centred: np.ndarray,
     lod95: float,
     options: RegionOptions,
-) -> str:
-    """The object rule's verdict on one region of the baseline (its one LoD everywhere)."""
+) -> tuple[str, str | None]:
+    """The surface-change rules' verdict (kind, cause) on one region of the baseline (its
+    one LoD everywhere)."""
     win = _padded(window, base_labels.shape)
     inside = base_labels[win] == base
     dh = centred[win]
     lod = np.full(dh.shape, np.float32(lod95))
     with np.errstate(invalid="ignore"):
         significant = inside & (np.abs(dh) > lod)
-    return _kind(rasters, win, inside, significant, dh, lod, options)[0]
+    kind = _kind(rasters, win, inside, significant, dh, lod, options)[0]
+    if kind == SURFACE_CHANGE:
+        return kind, OBJECTS
+    if _vegetation_cut(rasters, win, inside, dh, lod, options):
+        return SURFACE_CHANGE, VEGETATION_CUT
+    return kind, None
 
 
 def describe_region(
@@ -473,6 +526,9 @@ def describe_region(
         else 0.0
     )
     kind, object_share, ground_share = _kind(rasters, win, inside, significant, dh, lod, options)
+    cause = OBJECTS if kind == SURFACE_CHANGE else None
+    if kind == LANDSLIDE and _vegetation_cut(rasters, win, inside, dh, lod, options):
+        kind, cause = SURFACE_CHANGE, VEGETATION_CUT
     ring = near & ~inside
     ring_significant = float(
         np.count_nonzero(ring & ((sig == LOSS) | (sig == GAIN))) / max(np.count_nonzero(ring), 1)
@@ -519,7 +575,7 @@ def describe_region(
         "max_abs_dh_m": round(float(abs_values.max()) if abs_values.size else 0.0, 3),
         "lod_m": round(float(np.median(lod[finite])) if values.size else 0.0, 3),
     }
-    return Region(geometry=geometry, properties=properties, traits=traits, kind=kind)
+    return Region(geometry=geometry, properties=properties, traits=traits, kind=kind, cause=cause)
 
 
 def region_detection(
@@ -591,6 +647,79 @@ def _kind(
     if object_share >= options.object_fraction and moved_share < options.ground_motion_fraction:
         return SURFACE_CHANGE, object_share, ground_share
     return LANDSLIDE, object_share, ground_share
+
+
+def _vegetation_cut(
+    rasters: ChangeRasters,
+    win: tuple[slice, slice],
+    inside: np.ndarray,
+    dh: np.ndarray,
+    lod: np.ndarray,
+    options: RegionOptions,
+) -> bool:
+    """Whether the region (`inside`, with its `dh` and `lod`, on window `win`) is low
+    vegetation cut (vegetation_cut.py) with no significant gain; its texture is measured
+    on a window reaching three blur widths beyond it."""
+    if options.cut_new_texture_ratio is None or rasters.pre is None or rasters.post is None:
+        return False
+    # Grass tufts are resolved only where a pixel is no larger than the texture's scale.
+    if rasters.pixel_size > options.cut_texture_m:
+        return False
+    # Low vegetation only: where trees or buildings stand, the object rule judges.
+    vanished, appeared = (a[win] for a in rasters.objects(options))
+    if np.count_nonzero(
+        (vanished | appeared) & inside
+    ) > options.cut_object_share * np.count_nonzero(inside):
+        return False
+    if _has_deposit(rasters, inside, dh, lod, options):
+        return False
+    pad = math.ceil(3 * max(options.cut_texture_m / rasters.pixel_size, 1.0)) + 1
+    wide = _padded(win, rasters.dh.shape, pad)
+    placed = np.zeros((wide[0].stop - wide[0].start, wide[1].stop - wide[1].start), bool)
+    r0, c0 = win[0].start - wide[0].start, win[1].start - wide[1].start
+    placed[r0 : r0 + inside.shape[0], c0 : c0 + inside.shape[1]] = inside
+    texture = cut_texture(
+        rasters.pre[wide],
+        rasters.post[wide],
+        rasters.dh[wide],
+        placed,
+        rasters.pixel_size,
+        options.cut_texture_m,
+    )
+    return is_vegetation_cut(
+        texture,
+        options.cut_new_texture_ratio,
+        options.cut_depth_texture_ratio,
+        options.cut_gain_share,
+        options.object_height_m,
+    )
+
+
+def _has_deposit(
+    rasters: ChangeRasters,
+    inside: np.ndarray,
+    dh: np.ndarray,
+    lod: np.ndarray,
+    options: RegionOptions,
+) -> bool:
+    """Whether the region holds a deposit: significant gain, cleaned of speckle, in one
+    piece of the minimum region's size that holds `cut_inner_deposit_share` of the
+    region's loss (a slide's toe inside the mown patch its scar merged with; specks of
+    gain the errors leave in a mown patch hold a hundredth of its loss or less)."""
+    with np.errstate(invalid="ignore"):
+        gain = inside & (dh > lod)
+    if not gain.any():
+        return False
+    gain = clean_mask(gain, replace(options, closing_px=0))
+    pieces, count = ndimage.label(gain, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return False
+    index = np.arange(1, count + 1)
+    sizes = ndimage.sum_labels(gain, pieces, index) * rasters.pixel_area
+    volumes = ndimage.sum_labels(np.where(gain, dh, 0.0), pieces, index) * rasters.pixel_area
+    loss = float(-dh[inside & (dh < 0)].sum()) * rasters.pixel_area
+    large = sizes >= min_area_m2(rasters, options)
+    return bool(np.any(volumes[large] >= options.cut_inner_deposit_share * loss))
 
 
 def _downslope_alignment(

@@ -7,8 +7,9 @@ smaller than the minimum area (from the errors' correlation length unless fixed,
 change_regions.RegionOptions) are dropped, and so are regions whose loss and gain
 volumes are both within `min_volume_z` standard errors of zero under the fitted
 variogram (a patch of correlated error that passed the pixel LoD). Regions that are
-tall objects appearing or vanishing with no ground motion around them (trees, buildings)
-are set aside as surface changes and counted, not reported as landslides. Polygons
+tall objects appearing or vanishing with no ground motion around them (trees, buildings),
+or low vegetation cut (grass mown: vegetation_cut.py), are set aside as surface changes
+and counted, not reported as landslides. Polygons
 follow pixel edges in the metric CRS, where areas are measured, and are written in WGS84
 lon/lat with their 95 % intervals (change_regions.py).
 
@@ -26,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from worker.pipeline.change_regions import (
-    SURFACE_CHANGE,
+    OBJECTS,
+    VEGETATION_CUT,
     Region,
     RegionOptions,
     describe_region,
@@ -72,8 +74,12 @@ class VectorizeResult(StageResult):
     total_area_m2: float
     total_volume_loss_m3: float
     total_volume_gain_m3: float
-    surface_changes: int  # regions set aside as trees or buildings appearing or vanishing
+    # Regions set aside as surface change: trees or buildings appearing or vanishing,
+    # and low vegetation cut (of which `vegetation_cuts`).
+    surface_changes: int
     surface_change_area_m2: float
+    vegetation_cuts: int
+    vegetation_cut_area_m2: float
     min_area_m2: float
     method: str
     crs: str  # the metric CRS where areas and volumes were measured
@@ -137,6 +143,7 @@ def vectorize(
 def detection_totals(collection: dict[str, Any], surface: list[Region]) -> dict[str, Any]:
     """The result fields that sum the written detections and the set-aside surface changes."""
     props = [f["properties"] for f in collection["features"]]
+    cuts = [r for r in surface if r.cause == VEGETATION_CUT]
     return {
         "detections": len(props),
         "total_area_m2": float(sum(p["area_m2"] for p in props)),
@@ -144,12 +151,16 @@ def detection_totals(collection: dict[str, Any], surface: list[Region]) -> dict[
         "total_volume_gain_m3": float(sum(p["volume_gain_m3"] for p in props)),
         "surface_changes": len(surface),
         "surface_change_area_m2": round(float(sum(r.geometry.area for r in surface)), 2),
+        "vegetation_cuts": len(cuts),
+        "vegetation_cut_area_m2": round(float(sum(r.geometry.area for r in cuts)), 2),
     }
 
 
 def _volume_significant(region: Region, options: VectorizeOptions) -> bool:
-    """Surface changes are judged by the object rule; landslides by their volume too."""
-    if region.kind == SURFACE_CHANGE or options.min_volume_z is None:
+    """Tall objects that appeared or vanished are judged by the object rule; landslides
+    and vegetation cuts (which join a landslide beside their deposit) by their volume
+    too."""
+    if region.cause == OBJECTS or options.min_volume_z is None:
         return True
     return region.traits["volume_z"] >= options.min_volume_z
 
