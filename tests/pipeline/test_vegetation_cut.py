@@ -1,4 +1,5 @@
-"""Grass mown between surveys is surface change; ground that moved under grass is not.
+"""Grass mown between surveys is surface change, with the rule on (`vegetation_cut`, off
+by default); ground that moved under grass is not.
 
 A mown patch lowers a meadow's surface by the sward's height, past the LoD over square
 metres, like a shallow slip. The rule tells them apart by the fine texture: the mown
@@ -27,7 +28,7 @@ from worker.pipeline.change_regions import (
     split_surface_changes,
 )
 from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
-from worker.pipeline.vectorize import vectorize
+from worker.pipeline.vectorize import VectorizeOptions, vectorize
 from worker.pipeline.vegetation_cut import cut_texture
 
 PIXEL = 0.04
@@ -102,14 +103,14 @@ def _regions(rasters: ChangeRasters, options: RegionOptions) -> dict[str, list[R
 
 def test_the_mown_patch_is_a_vegetation_cut_and_the_slip_a_landslide():
     for seed in range(3):
-        regions = _regions(_rasters(*_meadow(seed)), RegionOptions())
+        regions = _regions(_rasters(*_meadow(seed)), RegionOptions(vegetation_cut=True))
         assert regions["mown"], f"seed {seed}: the mowing was not even found"
         assert all(r.kind == SURFACE_CHANGE and r.cause == VEGETATION_CUT for r in regions["mown"])
         mown_area = sum(r.properties["area_m2"] for r in regions["mown"])
         assert mown_area > 0.7 * 4.8 * 6.4, f"seed {seed}: {mown_area:.1f} m2"
         assert regions["slip"] and all(r.kind == LANDSLIDE for r in regions["slip"]), seed
-        # Without the rule the mown patch is a landslide: the rule is what sets it aside.
-        off = _regions(_rasters(*_meadow(seed)), RegionOptions(cut_new_texture_ratio=None))
+        # Without the rule (the default) the mown patch is a landslide.
+        off = _regions(_rasters(*_meadow(seed)), RegionOptions())
         assert off["mown"] and all(r.kind == LANDSLIDE for r in off["mown"])
 
 
@@ -120,7 +121,7 @@ def test_a_scar_deeper_than_the_grass_stays_a_landslide_even_alone():
     post[SLIP][60:] = pre[SLIP][60:]  # no deposit
     post[MOWN] = pre[MOWN]  # no mowing
     post[SLIP][:60] = ndimage.uniform_filter(post, 15)[SLIP][:60]  # the scar is smooth
-    regions = _regions(_rasters(pre, post), RegionOptions())
+    regions = _regions(_rasters(pre, post), RegionOptions(vegetation_cut=True))
     assert regions["slip"] and all(r.kind == LANDSLIDE for r in regions["slip"])
 
 
@@ -152,7 +153,7 @@ def _region(cause: str | None, kind: str, x: float, loss: float, gain: float) ->
 
 
 def test_a_cut_joins_a_landslide_beside_it_only_when_that_holds_its_material():
-    options = RegionOptions()
+    options = RegionOptions(vegetation_cut=True)
     scar = _region(VEGETATION_CUT, SURFACE_CHANGE, 0.0, loss=4.0, gain=0.0)
     deposit = _region(None, LANDSLIDE, 3.0, loss=0.0, gain=3.0)  # 1 m away, 3 of 4 m3
     landslides, surface = split_surface_changes([scar, deposit], options)
@@ -168,32 +169,33 @@ def test_a_cut_joins_a_landslide_beside_it_only_when_that_holds_its_material():
 
 
 def test_an_agricultural_twin_with_mown_patches_loses_its_false_alarms(tmp_path):
-    """agri-shallow's training seed 4: its twin's mown patch was the default's largest
-    false alarm; its pair's slide is still found."""
+    """agri-shallow's training seed 4, with the rule on: its twin's mown patch is the
+    default's largest false alarm; its pair's slide is still found."""
     generator = GENERATORS["agri-shallow"]
     found = {}
     for kind, no_change in (("pair", False), ("twin", True)):
         pair = generator.make(4, no_change=no_change)
         ensure_written(pair, tmp_path / kind)
-        for method in ("threshold", "threshold-nocut"):
+        for method in ("threshold-cut", "threshold"):
             options = method_options(method, None)
             run = run_method(pair, tmp_path / kind, tmp_path / f"run-{kind}-{method}", options)
             assert run["ok"], run["error"]
             found[kind, method] = run
-    with_rule = found["twin", "threshold"]["false_alarm"]["false_alarm_m2_per_km2"]
-    without = found["twin", "threshold-nocut"]["false_alarm"]["false_alarm_m2_per_km2"]
+    with_rule = found["twin", "threshold-cut"]["false_alarm"]["false_alarm_m2_per_km2"]
+    without = found["twin", "threshold"]["false_alarm"]["false_alarm_m2_per_km2"]
     assert without > 30_000 and with_rule < 0.15 * without, (with_rule, without)
-    slides = [s["found"] for s in found["pair", "threshold"]["slides"]]
-    assert slides == [s["found"] for s in found["pair", "threshold-nocut"]["slides"]]
+    slides = [s["found"] for s in found["pair", "threshold-cut"]["slides"]]
+    assert slides == [s["found"] for s in found["pair", "threshold"]["slides"]]
     # The stage's result says what it set aside, and how much.
-    run = tmp_path / "run-twin-threshold"
+    run = tmp_path / "run-twin-threshold-cut"
     result = vectorize(
         run / "dh.tif",
         run / "significance.tif",
         tmp_path / "again.geojson",
+        VectorizeOptions(vegetation_cut=True),
         pre_path=run / "pre_aligned.tif",
         post_path=run / "post_coregistered.tif",
     )
-    valid_m2 = found["twin", "threshold"]["false_alarm"]["valid_km2"] * 1e6
+    valid_m2 = found["twin", "threshold-cut"]["false_alarm"]["valid_km2"] * 1e6
     assert result.vegetation_cuts >= 1
     assert result.vegetation_cut_area_m2 > 0.8 * (without - with_rule) * valid_m2 / 1e6

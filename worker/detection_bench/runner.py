@@ -84,14 +84,14 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 # baseline's LoD costs), "threshold-noflanks" the floor without the flanks that join
 # significant change, "threshold-novolume" the default without its volume test,
 # "threshold-owncontext" the context rule measured from the default's own regions,
-# "threshold-nocut" the default without the vegetation-cut rule.
+# "threshold-cut" the default with mown grass set aside (an option, off by default).
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-uniform": ("threshold", BASELINE_OPTIONS),
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
     "threshold-noflanks": ("threshold", {"difference": {"flank_area_z": None}}),
     "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),
     "threshold-owncontext": ("threshold", {"vectorize": {"context_by_baseline": False}}),
-    "threshold-nocut": ("threshold", {"vectorize": {"cut_new_texture_ratio": None}}),
+    "threshold-cut": ("threshold", {"vectorize": {"vegetation_cut": True}}),
 }
 
 

@@ -47,8 +47,6 @@ class ScoreOptions(RegionOptions):
     min_pixel_z: float = 1.0  # and each of its pixels at least this many sigmas
     scorer: str | None = None  # path of a scorer JSON; None: the shipped default
     threshold: float | None = None  # None: the scorer's operating threshold
-    # The scorer was fitted on candidates the vegetation-cut rule did not set aside.
-    cut_new_texture_ratio: float | None = None
 
 
 @dataclass

@@ -32,20 +32,17 @@ def run_vectorize(context: ComparisonContext, progress: ProgressFn) -> Vectorize
 
 
 # The simple baseline the default is measured against (benchmarks and the paper's
-# protocol): one NMAD for the whole raster, no volume test and no vegetation-cut rule;
-# the comparison options that turn this method into it.
-BASELINE_OPTIONS = {
-    "difference": {"error_model": "uniform"},
-    "vectorize": {"min_volume_z": None, "cut_new_texture_ratio": None},
-}
+# protocol): one NMAD for the whole raster and no volume test; the comparison options
+# that turn this method into it.
+BASELINE_OPTIONS = {"difference": {"error_model": "uniform"}, "vectorize": {"min_volume_z": None}}
 
 METHOD = DetectionMethod(
     name="threshold",
     summary="The LoD method: every change beyond its per-pixel level of detection "
     "(LoD95 from slope and curvature, never below the raster's one-NMAD LoD), larger than "
     "the errors' correlation or, if smaller, twice its LoD, and with a loss or gain volume "
-    "3 standard errors clear of zero; trees, buildings and mown grass that changed on unmoved "
-    "ground are set aside.",
+    "3 standard errors clear of zero; trees and buildings that changed on unmoved ground are "
+    "set aside.",
     stage=StageSpec(
         name="vectorize",
         run=run_vectorize,
