@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { useLocale } from "./i18n";
-import { detectionText, methodOptionsHtml, methodSummary } from "./methods";
+import { comparisonParameters, detectionText, methodOptionsHtml, methodSummary } from "./methods";
 import type { DetectionMethod } from "./types";
 
 const methods: DetectionMethod[] = [
@@ -18,6 +18,13 @@ describe("methods", () => {
     expect(select.options[0].textContent).toBe("scored (default)");
     select.innerHTML = methodOptionsHtml(methods.map((m) => ({ ...m, default: m.name === "threshold" })));
     expect(select.value).toBe("threshold");
+  });
+
+  it("ask for mown grass to be set aside only where the method can and the user chose it", () => {
+    expect(comparisonParameters("threshold", true)).toEqual({ vectorize: { vegetation_cut: true } });
+    expect(comparisonParameters("threshold", false)).toEqual({});
+    expect(comparisonParameters("scored", true)).toEqual({});
+    expect(comparisonParameters("", true)).toEqual({});
   });
 
   it("give the chosen method's one line", () => {

@@ -23,6 +23,16 @@ export function methodSummary(methods: DetectionMethod[], name: string): string 
   return method ? serverWords(`method.${method.name}`, method.summary) : "";
 }
 
+/** The methods that can set aside grass mown between surveys (the LoD method's
+ * `vegetation_cut` option). */
+export const MOWING_METHODS = ["threshold"];
+
+/** The comparison's stage parameters for the form's choices: mown grass set aside only
+ * where the method has the option and the user asked for it. */
+export function comparisonParameters(method: string, setAsideMowing: boolean): Record<string, unknown> {
+  return setAsideMowing && MOWING_METHODS.includes(method) ? { vectorize: { vegetation_cut: true } } : {};
+}
+
 /** "LoD 0.12 m (0.08–0.20 m, heteroscedastic) · model scorer-default@1": the level of
  * detection the comparison applied and the model behind its detections. Empty before
  * the difference stage has run and for a method without a model. */

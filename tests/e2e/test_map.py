@@ -91,6 +91,14 @@ def test_sign_in_upload_compare_and_read_the_map(
     assert method.locator("option").all_inner_texts() == [
         f"{name} (default)" if name == default["name"] else name for name in method_names()
     ]
+    # Mown grass is set aside only when asked, and only the LoD method offers it.
+    mowing = page.get_by_label("Set aside grass mown between the surveys", exact=False)
+    expect(mowing).to_be_visible()
+    expect(mowing).not_to_be_checked()
+    method.select_option("scored")
+    expect(mowing).to_be_hidden()
+    method.select_option(default["name"])
+    expect(mowing).to_be_visible()
     page.get_by_role("button", name="Compare").click()
     job = page.locator(".job").first
     expect(job).to_contain_text("coregister")
@@ -112,7 +120,9 @@ def test_sign_in_upload_compare_and_read_the_map(
     note = page.locator("[data-legend=alignment]")
     # The statement is the comparison's stored shift (the pair was made 1.3 m E, 0.7 m S
     # and 0.2 m up of pre: the correction undoes that).
-    summary = api_comparisons(page, app_server, "East flank")[0]["summary"]
+    compared = api_comparisons(page, app_server, "East flank")[0]
+    assert compared["parameters"]["vectorize"]["vegetation_cut"] is False  # not asked for
+    summary = compared["summary"]
     shift, rotation = summary["shift_m"], summary["rotation_deg"]
     assert abs(shift["east"] + 1.3) < 0.1 and abs(shift["north"] - 0.7) < 0.1, shift
 

@@ -13,7 +13,7 @@ import { UploadPanel } from "../components/uploadPanel";
 import { escapeHtml, formatArea, formatDate, formatFixed, formatMetres, formatVolume } from "../format";
 import { type MessageKey, serverText, t } from "../i18n";
 import { MapView } from "../map/mapView";
-import { detectionText, methodOptionsHtml, methodSummary } from "../methods";
+import { comparisonParameters, detectionText, methodOptionsHtml, methodSummary, MOWING_METHODS } from "../methods";
 import type {
   Comparison,
   ComparisonCreatedOut,
@@ -90,6 +90,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
             <label for="method">${t("site.method")}</label>
             <select id="method" aria-describedby="method-summary"></select>
             <p class="muted method-summary" id="method-summary"></p>
+            <label class="check" id="vegetation-cut-row" hidden><input type="checkbox" id="vegetation-cut"> ${t("site.vegetationCut")}</label>
             <label class="check"><input type="checkbox" id="run-again"> ${t("site.runAgain")}</label>
             <button type="submit">${t("site.compare")}</button>
             <p class="muted" role="status" id="compare-status"></p>
@@ -259,6 +260,8 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
   const methodSelect = $("method") as HTMLSelectElement;
   const showMethodSummary = () => {
     $("method-summary").textContent = methodSummary(methods, methodSelect.value);
+    // Only the LoD method can set mown grass aside.
+    $("vegetation-cut-row").hidden = !MOWING_METHODS.includes(methodSelect.value);
   };
   async function loadMethods(): Promise<void> {
     try {
@@ -400,6 +403,7 @@ export async function renderSite(app: HTMLElement, siteId: number, config: MapCo
         pre_survey_id: Number(($("pre-survey") as HTMLSelectElement).value),
         post_survey_id: Number(($("post-survey") as HTMLSelectElement).value),
         method: methodSelect.value || null, // none chosen: the server's default
+        parameters: comparisonParameters(methodSelect.value, ($("vegetation-cut") as HTMLInputElement).checked),
         run_again: runAgain.checked,
       });
       runAgain.checked = false;

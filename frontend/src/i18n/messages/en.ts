@@ -470,6 +470,7 @@ export const messages = {
   "site.post": "After (post)",
   "site.method": "Detection method",
   "site.runAgain": "Run again even if these surveys were compared this way",
+  "site.vegetationCut": "Set aside grass mown between the surveys (for grassland; a slide inside a mown patch goes with it)",
   "site.compare": "Compare",
   "site.comparisons": "Comparisons",
   "site.processing": "Processing",

@@ -455,6 +455,7 @@ const messages: Messages = {
   "site.post": "後時期",
   "site.method": "検出手法",
   "site.runAgain": "同じ測量・手法で比較済みでも再実行する",
+  "site.vegetationCut": "測量間の草刈りを除外する（草地向け。刈られた範囲の中の地すべりも除外されます）",
   "site.compare": "比較を実行",
   "site.comparisons": "比較",
   "site.processing": "処理",
