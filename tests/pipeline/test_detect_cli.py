@@ -75,3 +75,22 @@ def test_bad_input_exits_2_with_a_plain_message(tmp_path):
     assert "pre.tif is not a GeoTIFF, nor any raster file" in result.stderr
     assert result.stdout == ""
     assert not out.exists()
+
+
+def test_mown_grass_is_set_aside_only_by_the_lod_method(slide_run, tmp_path):
+    """`--vegetation-cut` on the slide pair (bare ground: nothing to set aside) keeps the
+    slide; a method without the option refuses it before any work."""
+    common = ["--pre", str(slide_run.paths.pre), "--post", str(slide_run.paths.post)]
+    out = tmp_path / "threshold.geojson"
+    result = CliRunner().invoke(
+        detect, [*common, "--out", str(out), "--method", "threshold", "--vegetation-cut"]
+    )
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["detections"] == 1
+    refused = tmp_path / "cnn.geojson"
+    result = CliRunner().invoke(
+        detect, [*common, "--out", str(refused), "--method", "cnn", "--vegetation-cut"]
+    )
+    assert result.exit_code == 2
+    assert "--vegetation-cut: the cnn method does not set aside mown grass" in result.stderr
+    assert not refused.exists()

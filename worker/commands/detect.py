@@ -18,6 +18,7 @@ from worker.pipeline.detection_methods import (
     method_names,
 )
 from worker.pipeline.errors import InputError
+from worker.pipeline.vectorize import VectorizeOptions
 
 EXIT_INPUT_ERROR = 2
 
@@ -108,6 +109,12 @@ def _methods_help() -> str:
     "error model fitted on stable terrain).",
 )
 @click.option(
+    "--vegetation-cut",
+    is_flag=True,
+    help="threshold: set aside grass mown between the surveys (for grassland; a slide "
+    "inside a mown patch goes with it, so it is off by default).",
+)
+@click.option(
     "--from-stage",
     type=StageChoice(),
     default=None,
@@ -122,6 +129,7 @@ def detect(
     work_dir: Path | None,
     min_area: float | None,
     lod: float | None,
+    vegetation_cut: bool,
     from_stage: str | None,
 ) -> None:
     """Detect landslides between two DSMs; print a one-line JSON summary."""
@@ -139,6 +147,14 @@ def detect(
         options.detection.min_area_m2 = min_area
     if lod is not None:
         options.difference.lod_m = lod
+    if vegetation_cut:
+        if not isinstance(options.detection, VectorizeOptions):
+            click.echo(
+                f"error: --vegetation-cut: the {chosen.name} method does not set aside mown grass",
+                err=True,
+            )
+            raise SystemExit(EXIT_INPUT_ERROR)
+        options.detection.vegetation_cut = True
     if from_stage is not None and work_dir is None:
         click.echo("error: --from-stage needs the --work-dir of the earlier run", err=True)
         raise SystemExit(EXIT_INPUT_ERROR)
