@@ -6,7 +6,7 @@ from rasterio.transform import from_origin
 
 from worker.pipeline.change_regions import ChangeRasters
 from worker.pipeline.difference import GAIN, LOSS
-from worker.pipeline.error_model import ErrorModel
+from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
 
 
 def change_rasters(
@@ -30,4 +30,25 @@ def change_rasters(
         model=model,
         pre=pre,
         post=post,
+    )
+
+
+def uniform_change_rasters(
+    pre: np.ndarray, post: np.ndarray, pixel_size: float, sigma: float
+) -> ChangeRasters:
+    """The change between two DSMs under one sigma everywhere (errors uncorrelated)."""
+    model = ErrorModel(
+        pixel_size=pixel_size,
+        slope_centres_deg=[0.0],
+        curvature_centres=[0.0],
+        sigma_table=[[sigma]],
+        median_dh_m=0.0,
+        nmad_m=sigma,
+        stable_pixels=pre.size,
+        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
+    )
+    lod = np.full(pre.shape, LOD_Z * sigma, np.float32)
+    dh = (post - pre).astype(np.float32)
+    return change_rasters(
+        dh, lod, model, pixel_size, pre.astype(np.float32), post.astype(np.float32)
     )

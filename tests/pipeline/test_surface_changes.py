@@ -10,7 +10,7 @@ a slide carried off are cut from its ground by the LoD: lost within 5 m of it, t
 import numpy as np
 from scipy import ndimage
 
-from tests.pipeline.change_rasters import change_rasters
+from tests.pipeline.change_rasters import uniform_change_rasters
 from worker.pipeline.change_regions import (
     LANDSLIDE,
     SURFACE_CHANGE,
@@ -23,7 +23,7 @@ from worker.pipeline.change_regions import (
     significant_regions,
     split_surface_changes,
 )
-from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
+from worker.pipeline.error_model import LOD_Z
 
 PIXEL = 0.5
 SHAPE = (260, 260)
@@ -46,19 +46,7 @@ def _crowns(rng: np.random.Generator, centres: list[tuple[int, int]], grow_m: fl
 
 def _rasters(pre: np.ndarray, post: np.ndarray) -> ChangeRasters:
     """The pair's change under one sigma everywhere (SIGMA)."""
-    model = ErrorModel(
-        pixel_size=PIXEL,
-        slope_centres_deg=[0.0],
-        curvature_centres=[0.0],
-        sigma_table=[[SIGMA]],
-        median_dh_m=0.0,
-        nmad_m=SIGMA,
-        stable_pixels=pre.size,
-        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
-    )
-    lod = np.full(SHAPE, LOD_Z * SIGMA, np.float32)
-    dh = (post - pre).astype(np.float32)
-    return change_rasters(dh, lod, model, PIXEL, pre.astype(np.float32), post.astype(np.float32))
+    return uniform_change_rasters(pre, post, PIXEL, SIGMA)
 
 
 def _forest_pair(seed: int) -> tuple[ChangeRasters, list[tuple[int, int]]]:

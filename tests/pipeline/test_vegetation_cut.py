@@ -11,7 +11,7 @@ import numpy as np
 from scipy import ndimage
 from shapely.geometry import box
 
-from tests.pipeline.change_rasters import change_rasters
+from tests.pipeline.change_rasters import uniform_change_rasters
 from worker.detection_bench.runner import ensure_written, method_options, run_method
 from worker.pairgen import GENERATORS
 from worker.pipeline.change_regions import (
@@ -27,7 +27,6 @@ from worker.pipeline.change_regions import (
     significant_regions,
     split_surface_changes,
 )
-from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
 from worker.pipeline.vectorize import VectorizeOptions, vectorize
 from worker.pipeline.vegetation_cut import cut_texture
 
@@ -70,19 +69,8 @@ def _meadow(seed: int, depth_m: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rasters(pre: np.ndarray, post: np.ndarray) -> ChangeRasters:
-    model = ErrorModel(
-        pixel_size=PIXEL,
-        slope_centres_deg=[0.0],
-        curvature_centres=[0.0],
-        sigma_table=[[SIGMA]],
-        median_dh_m=0.0,
-        nmad_m=SIGMA,
-        stable_pixels=pre.size,
-        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
-    )
-    lod = np.full(SHAPE, LOD_Z * SIGMA, np.float32)
-    dh = (post - pre).astype(np.float32)
-    return change_rasters(dh, lod, model, PIXEL, pre.astype(np.float32), post.astype(np.float32))
+    """The pair's change under one sigma everywhere (SIGMA)."""
+    return uniform_change_rasters(pre, post, PIXEL, SIGMA)
 
 
 def _regions(rasters: ChangeRasters, options: RegionOptions) -> dict[str, list[Region]]:
