@@ -13,6 +13,7 @@ after the bias; time offset within 0.05 s of the truth (the manifest's log start
 
 import csv
 import json
+import shutil
 from pathlib import Path
 
 import av
@@ -197,6 +198,28 @@ def test_stages_are_idempotent(slam_run):
     with rasterio.open(out / "dsm.tif") as src:
         np.testing.assert_array_equal(src.read(1), before)
     assert not list(out.glob(".*.part*"))
+
+
+def test_spikes_above_the_cameras_do_not_blind_the_orthophoto(slam_run, tmp_path):
+    """A DSM whose 0.5 % of cells are outliers far above the cameras (as one of issue
+    18's flights had, 82 m under a flight at 32 m) still gets its orthophoto: the views'
+    footprints are bounded by the DSM's bulk heights, not by its extremes."""
+    out, _ = slam_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    with rasterio.open(work / "dsm.tif") as src:
+        profile, heights = src.profile, src.read(1)
+    cameras = -np.einsum(
+        "nji,nj->ni", *(np.load(work / "georeference" / "map.npz")[k] for k in ("kf_r", "kf_tr"))
+    )
+    valid = heights != profile["nodata"]
+    spikes = valid & (np.random.default_rng(8).random(heights.shape) < 0.005)
+    heights[spikes] = cameras[:, 2].max() + 50.0
+    with rasterio.open(work / "dsm.tif", "w", **profile) as dst:
+        dst.write(heights, 1)
+    result = run_stage("orthophoto", work, ReconstructionOptions())
+    assert result["orthophoto"] is not None, result["warnings"]
+    assert result["orthophoto"]["coverage"] > 0.9 and result["orthophoto"]["views"] >= 4
 
 
 def test_sfm_reference_method(survey, tmp_path):

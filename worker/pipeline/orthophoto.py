@@ -480,9 +480,14 @@ def _write(
         altitude = float(np.median(np.abs(heights))) if heights.size else 50.0
         footprint_m = altitude * w / camera.k[0, 0]
         views = select_views(sparse, options.view_spacing * footprint_m)
-        # The DSM's own height range bounds the footprints.
+        # The DSM's own height range bounds the footprints: its 1st to 99th percentile,
+        # since a few outlying cells (a spike above the cameras: 82 m under a flight at
+        # 32 m, issue 18's flight seed 8) would put every view at the horizon.
         stats = dsm.src.read(1, out_shape=(64, 64), masked=True).compressed()
-        z_range = (float(stats.min()), float(stats.max())) if stats.size else (ground, ground)
+        z_range = (ground, ground)
+        if stats.size:
+            low, high = np.percentile(stats, [1.0, 99.0])
+            z_range = (float(low), float(high))
         bounds_of: dict[int, tuple[float, float, float, float]] = {}
         for kf in views.tolist():
             b = _footprint_bounds(camera, sparse.kf_r[kf], sparse.kf_tr[kf], z_range)
