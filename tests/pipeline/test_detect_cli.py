@@ -2,9 +2,12 @@
 
 import json
 
+import pytest
 from click.testing import CliRunner
 
 from worker.commands.detect import detect
+from worker.pipeline.comparison import ComparisonOptions
+from worker.pipeline.errors import InputError
 
 
 def test_detect_writes_geojson_and_prints_one_summary_line(slide_run, tmp_path):
@@ -94,3 +97,6 @@ def test_mown_grass_is_set_aside_only_by_the_lod_method(slide_run, tmp_path):
     assert result.exit_code == 2
     assert "--vegetation-cut: the cnn method does not set aside mown grass" in result.stderr
     assert not refused.exists()
+    # The API's parameters give the same answer for the scored method.
+    with pytest.raises(InputError, match="scored method does not set aside mown grass"):
+        ComparisonOptions.from_dict({"method": "scored", "score": {"vegetation_cut": True}})

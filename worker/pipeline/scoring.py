@@ -33,6 +33,7 @@ from worker.pipeline.change_regions import (
 )
 from worker.pipeline.detection_record import write_detections
 from worker.pipeline.error_model import area_t
+from worker.pipeline.errors import InputError
 from worker.pipeline.geo import crs_to_string
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.scorer import load_scorer
@@ -47,6 +48,12 @@ class ScoreOptions(RegionOptions):
     min_pixel_z: float = 1.0  # and each of its pixels at least this many sigmas
     scorer: str | None = None  # path of a scorer JSON; None: the shipped default
     threshold: float | None = None  # None: the scorer's operating threshold
+
+    def __post_init__(self) -> None:
+        # One answer everywhere (API, CLI, page): only the LoD method sets mown grass
+        # aside; the scorer was fitted on candidates the rule never set aside.
+        if self.vegetation_cut:
+            raise InputError("the scored method does not set aside mown grass (vegetation_cut)")
 
 
 @dataclass

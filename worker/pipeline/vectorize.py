@@ -8,8 +8,8 @@ change_regions.RegionOptions) are dropped, and so are regions whose loss and gai
 volumes are both within `min_volume_z` standard errors of zero under the fitted
 variogram (a patch of correlated error that passed the pixel LoD). Regions that are
 tall objects appearing or vanishing with no ground motion around them (trees, buildings),
-or low vegetation cut (grass mown: vegetation_cut.py), are set aside as surface changes
-and counted, not reported as landslides. Polygons
+or, with `vegetation_cut`, low vegetation cut (grass mown: vegetation_cut.py), are set
+aside as surface changes and counted, not reported as landslides. Polygons
 follow pixel edges in the metric CRS, where areas are measured, and are written in WGS84
 lon/lat with their 95 % intervals (change_regions.py).
 
