@@ -283,7 +283,9 @@ def run_flight(
     record["success"] = slam["success"]
     if with_sfm:
         sfm = _reconstruct(manifest, survey, work / "sfm", "sfm", cond.gnss, readout)
-        record["sfm"] = {k: sfm[k] for k in ("success", "failure", "wall_seconds") if k in sfm}
+        kept = ("success", "failure", "wall_seconds", "quality_passed")
+        record["sfm"] = {k: sfm[k] for k in kept if k in sfm}
+        record["sfm"]["dsm_nmad_as_georeferenced_px"] = sfm.get("dsm_nmad_as_georeferenced_px")
         if slam["success"] and sfm["success"]:
             record["sfm_over_slam_wall_time"] = round(sfm["wall_seconds"] / slam["wall_seconds"], 2)
     return record
@@ -334,8 +336,7 @@ def _reconstruct(
         return _failed("error", detail, start)
     wall = time.perf_counter() - start
     out: dict[str, Any] = {"success": True, "wall_seconds": round(wall, 2)}
-    if method != "slam":
-        return out
+    # sfm too: its speed is only worth comparing where its result is as good.
     out.update(_against_truth(run, result.results, manifest, survey, wall))
     return out
 
@@ -347,7 +348,7 @@ def _against_truth(
     survey: dict[str, Any],
     wall: float,
 ) -> dict[str, Any]:
-    """A slam reconstruction's figures against the simulator's truth. A DSM that cannot
+    """A reconstruction's figures against the simulator's truth. A DSM that cannot
     be co-registered onto its truth (the iterations run out of stable cells: the DSM is
     far off) makes the flight a failure, with its other figures kept."""
     truth_dsm = manifest.resolve(manifest.steps[0]["truth"]["dsm"])

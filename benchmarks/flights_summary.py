@@ -79,6 +79,16 @@ FIGURES = (
         lambda r: r.get("sfm_over_slam_wall_time"),
         higher_is_better=True,
     ),
+    # The reference's own result: a ratio over sfm runs that broke apart flatters slam.
+    Figure(
+        "sfm_dsm_nmad_as_georeferenced_px",
+        lambda r: r.get("sfm", {}).get("dsm_nmad_as_georeferenced_px"),
+    ),
+    Figure(
+        "sfm_quality_passed",
+        lambda r: _as_number(r.get("sfm", {}).get("quality_passed")),
+        higher_is_better=True,
+    ),
 )
 
 

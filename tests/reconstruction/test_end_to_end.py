@@ -241,6 +241,30 @@ def test_sfm_reference_method(survey, tmp_path):
     assert_stage_files_read_back(tmp_path)
 
 
+def test_sfm_keeps_a_guessed_focal_length(survey, tmp_path):
+    """The AirData log names no camera, so the focal length is a guess (the right one
+    here), which a drone survey cannot correct (it trades against the ground's depth):
+    it is kept, and the report says so."""
+    flight, _ = survey
+    code, output = run_cli(
+        "--video",
+        flight / "DJI_0001.MP4",
+        "--log",
+        flight / "flight-airdata.csv",
+        "--out",
+        tmp_path,
+        "--method",
+        "sfm",
+    )
+    assert code == 0, output
+    rec = json.loads((tmp_path / "reconstruct.json").read_text())
+    assert not rec["sfm"]["focal_refined"]
+    assert rec["sfm"]["fx"] == pytest.approx(640 * 8.8 / 13.2, abs=0.01)
+    report = json.loads((tmp_path / "report.json").read_text())
+    kept = [w for w in report["warnings"] if w.startswith("SfM kept the guessed focal length")]
+    assert len(kept) == 1 and "give the camera" in kept[0]
+
+
 def test_a_time_offset_given_by_the_user_is_kept(survey, tmp_path):
     flight, _ = survey
     inputs = ReconstructionInputs(

@@ -1,24 +1,29 @@
-"""SfM refines the focal length only when the intrinsics are a guess."""
+"""SfM keeps the focal length fixed, a guessed one too unless asked to refine it."""
 
 import pycolmap
 import pytest
 
 from worker.pipeline.ingest.camera import resolve_intrinsics
-from worker.pipeline.sfm import SfmOptions, _mapping_options, _refined
+from worker.pipeline.sfm import SfmOptions, _mapping_options, _refined, refines_focal
 
 
 def test_known_camera_keeps_its_focal_length_fixed():
     intr = resolve_intrinsics(320, 180, exif_model="FC6310")
-    mapping = _mapping_options(SfmOptions(), intr.focal_guess)
+    assert not intr.focal_guess
+    assert not refines_focal(intr, SfmOptions())
+    assert not refines_focal(intr, SfmOptions(refine_guessed_focal=True))
+    mapping = _mapping_options(SfmOptions(), refine_focal=False)
     assert not mapping.ba_refine_focal_length
     assert not mapping.mapper.abs_pose_refine_focal_length
     assert not mapping.ba_refine_principal_point and not mapping.ba_refine_extra_params
 
 
-def test_guessed_focal_length_is_refined_and_used():
+def test_a_guessed_focal_length_is_kept_unless_refining_is_asked_for():
     intr = resolve_intrinsics(320, 180)
     assert intr.focal_guess
-    mapping = _mapping_options(SfmOptions(), intr.focal_guess)
+    assert not refines_focal(intr, SfmOptions())  # a drone survey cannot tell it
+    assert refines_focal(intr, SfmOptions(refine_guessed_focal=True))
+    mapping = _mapping_options(SfmOptions(), refine_focal=True)
     assert mapping.ba_refine_focal_length
     assert mapping.mapper.abs_pose_refine_focal_length
     # Only the focal length: the principal point and distortion stay as they are.

@@ -23,8 +23,9 @@ why, in words a user can check):
    whole millimetres (24 for 24.4: up to 2 % at wide angles) and it is defined on the
    diagonal, so for a 4:3 sensor 36 mm is not the equivalent width (fx ~4 % low).
 5. A guess, the paper's Phantom 4 Pro field of view (74 degrees), with a warning that
-   says what is missing, and `Intrinsics.focal_guess` set so that SfM refines the focal
-   length instead of holding a wrong one fixed (the SLAM method cannot refine it).
+   says what is missing, and `Intrinsics.focal_guess` set (the SfM method can refine
+   it on request, `SfmOptions.refine_guessed_focal`; on drone surveys the refinement
+   moved a right guess by 15 % or more, so neither method does by default).
 
 Video is taken to be read out over the full sensor width (DJI's 16:9 modes crop the
 height), so the same fx / width ratio holds for stills and video; modes that crop the
@@ -394,7 +395,7 @@ def _from_metadata(
     hfov = 2 * np.degrees(np.arctan(default.sensor_width_mm / 2 / default.focal_mm))
     warnings.append(
         f"{why}: assumed a Phantom 4 Pro ({hfov:.0f} deg horizontal field of view, "
-        f"fx = {fx:.0f} px) as a guess that the SfM method refines (SLAM cannot); "
-        "give the camera (model, fx or field of view) to be sure"
+        f"fx = {fx:.0f} px) as a guess, which a drone survey cannot correct (a wrong focal "
+        "length scales the heights); give the camera (model, fx or field of view) to be sure"
     )
     return fx, f"guess: {why}; assumed {default.name}", True
