@@ -222,20 +222,16 @@ def test_spikes_above_the_cameras_do_not_blind_the_orthophoto(slam_run, tmp_path
     assert result["orthophoto"]["coverage"] > 0.9 and result["orthophoto"]["views"] >= 4
 
 
+def run_sfm_cli(video: Path, log: Path, out: Path) -> dict:
+    """`slidewatch reconstruct --method sfm`; its reconstruct stage's result."""
+    code, output = run_cli("--video", video, "--log", log, "--out", out, "--method", "sfm")
+    assert code == 0, output
+    return json.loads((out / "reconstruct.json").read_text())
+
+
 def test_sfm_reference_method(survey, tmp_path):
     flight, _ = survey
-    code, output = run_cli(
-        "--video",
-        flight / "DJI_0001.MP4",
-        "--log",
-        flight / "DJI_0001.SRT",
-        "--out",
-        tmp_path,
-        "--method",
-        "sfm",
-    )
-    assert code == 0, output
-    rec = json.loads((tmp_path / "reconstruct.json").read_text())
+    rec = run_sfm_cli(flight / "DJI_0001.MP4", flight / "DJI_0001.SRT", tmp_path)
     assert rec["method"] == "sfm" and rec["sfm"]["registered"] >= 8
     assert (tmp_path / "dsm.tif").is_file()
     assert_stage_files_read_back(tmp_path)
@@ -246,18 +242,7 @@ def test_sfm_keeps_a_guessed_focal_length(survey, tmp_path):
     here), which a drone survey cannot correct (it trades against the ground's depth):
     it is kept, and the report says so."""
     flight, _ = survey
-    code, output = run_cli(
-        "--video",
-        flight / "DJI_0001.MP4",
-        "--log",
-        flight / "flight-airdata.csv",
-        "--out",
-        tmp_path,
-        "--method",
-        "sfm",
-    )
-    assert code == 0, output
-    rec = json.loads((tmp_path / "reconstruct.json").read_text())
+    rec = run_sfm_cli(flight / "DJI_0001.MP4", flight / "flight-airdata.csv", tmp_path)
     assert not rec["sfm"]["focal_refined"]
     assert rec["sfm"]["fx"] == pytest.approx(640 * 8.8 / 13.2, abs=0.01)
     report = json.loads((tmp_path / "report.json").read_text())
