@@ -16,7 +16,12 @@ def test_the_site_language_is_chosen_on_its_page(page: Page, app_server: App) ->
     expect(choice).to_have_value("en")
     expect(choice.locator("option")).to_have_text(["English", "日本語"])
     choice.select_option("ja")
-    page.get_by_role("button", name="Save time zone and language").click()
+    # The heading is on the page before the save as after it: wait for the save itself.
+    with page.expect_response(
+        lambda r: r.request.method == "PATCH" and "/api/v1/sites/" in r.url
+    ) as saved:
+        page.get_by_role("button", name="Save time zone and language").click()
+    assert saved.value.ok
     expect(page.get_by_role("heading", name="Language slope", level=1)).to_be_visible()
 
     with httpx.Client(base_url=f"{app_server.url}/api/v1", timeout=30) as api:
