@@ -28,6 +28,7 @@ from rio_cogeo.cogeo import cog_validate
 
 from worker.commands.reconstruct import reconstruct
 from worker.pipeline.errors import InputError
+from worker.pipeline.ingest.video import probe_video
 from worker.pipeline.reconstruction import (
     STAGES,
     ReconstructionInputs,
@@ -220,6 +221,27 @@ def test_spikes_above_the_cameras_do_not_blind_the_orthophoto(slam_run, tmp_path
     result = run_stage("orthophoto", work, ReconstructionOptions())
     assert result["orthophoto"] is not None, result["warnings"]
     assert result["orthophoto"]["coverage"] > 0.9 and result["orthophoto"]["views"] >= 4
+
+
+def test_the_orthophoto_needs_no_second_decoding_of_the_video(slam_run, tmp_path):
+    """The orthophoto's views come from the frames stage's colour copy of the frames it
+    stored: with the survey's video gone from where ingest read it, the orthophoto is
+    made again, the same."""
+    out, _ = slam_run
+    work = tmp_path / "work"
+    shutil.copytree(out, work)
+    frames = json.loads((work / "frames.json").read_text())["frames"]
+    ingest = json.loads((work / "ingest.json").read_text())
+    video = probe_video(Path(ingest["inputs"]["video"]))
+    # Twice the processing size, no larger than the video.
+    width = min(2 * frames["width"], video.width)
+    assert frames["colour_size"] == [width, width * frames["height"] // frames["width"]]
+    ingest["inputs"]["video"] = str(tmp_path / "moved-away.MP4")
+    (work / "ingest.json").write_text(json.dumps(ingest))
+    result = run_stage("orthophoto", work, ReconstructionOptions())
+    assert result["orthophoto"] is not None, result["warnings"]
+    with rasterio.open(out / "orthophoto.tif") as a, rasterio.open(work / "orthophoto.tif") as b:
+        np.testing.assert_array_equal(a.read(), b.read())
 
 
 def run_sfm_cli(video: Path, log: Path, out: Path) -> dict:

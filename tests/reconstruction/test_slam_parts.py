@@ -321,6 +321,80 @@ def test_frames_stage_stores_only_the_tracked_frames(tmp_path):
     np.testing.assert_allclose([f.t for f in frames], stored / 20, atol=1e-6)
 
 
+def write_colour_video(path, pix_fmt: str = "yuv420p", colour_range: int | None = None) -> None:
+    """20 frames at 20 fps of 640 x 360 colour panning 10 px per frame."""
+    import av
+
+    grey = texture((400, 1400), 6)
+    base = cv2.merge([grey, np.roll(grey, 40, axis=1), 255 - grey])  # B, G, R differ
+    container = av.open(str(path), "w")
+    stream = container.add_stream("libx264", rate=20)
+    stream.width, stream.height, stream.pix_fmt = 640, 360, pix_fmt
+    stream.options = {"crf": "10"}
+    if colour_range is not None:
+        stream.codec_context.color_range = colour_range
+    for i in range(20):
+        frame = av.VideoFrame.from_ndarray(
+            np.ascontiguousarray(base[20:380, 10 * i : 10 * i + 640]), format="bgr24"
+        )
+        for packet in stream.encode(frame.reformat(format=pix_fmt)):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+
+
+@pytest.mark.parametrize(
+    "pix_fmt, colour_range", [("yuv420p", None), ("yuvj420p", 2), ("yuv444p", None)]
+)
+def test_frames_stage_stores_its_frames_in_colour_for_the_orthophoto(
+    tmp_path, pix_fmt, colour_range
+):
+    """The stored frames, also in colour at the size asked for: the same frames in the
+    same order with their original times, their colours those of the video's frames
+    (limited- or full-range 4:2:0, or 4:4:4 through FFmpeg's scaler)."""
+    from worker.pipeline.ingest.video import iter_frames
+
+    path = tmp_path / "v.mp4"
+    write_colour_video(path, pix_fmt, colour_range)
+    out = tmp_path / "frames"
+    result = prepare_video_frames(
+        path, out, FrameOptions(width=320, height=180), track_step_px=12.0, colour_size=(480, 270)
+    )
+    assert result.colour_size == (480, 270) and result.to_dict()["colour_size"] == (480, 270)
+    grey = list(iter_prepared_frames(out))
+    colour = list(iter_prepared_frames(out, colour=True))
+    assert [f.index for f in grey] == [0, 3, 6, 9, 12, 15, 18, 19]
+    assert [f.index for f in colour] == [f.index for f in grey]
+    assert [f.t for f in colour] == [f.t for f in grey]
+    decoded = {f.index: f.image for f in iter_frames(path, size=(480, 270), gray=False)}
+
+    def smooth(image: np.ndarray) -> np.ndarray:
+        # Compared beyond the finest detail, where two resamplings of a texture of 2 px
+        # colour grain (and 4:4:4's chroma reduced to 4:2:0) differ by 4-7 grey levels.
+        return cv2.GaussianBlur(image.astype(np.float32), (0, 0), 2.0)
+
+    for frame in colour:
+        assert frame.image.shape == (270, 480, 3)
+        error = np.abs(smooth(frame.image) - smooth(decoded[frame.index])).mean(axis=(0, 1))
+        assert (error < 3.0).all(), (frame.index, error)  # grey levels, per channel
+    # Only the frames asked for are converted; the others are not yielded.
+    wanted = {grey[2].t, grey[5].t}
+    some = list(iter_prepared_frames(out, colour=True, wanted=lambda t: t in wanted))
+    assert [f.index for f in some] == [grey[2].index, grey[5].index]
+
+
+def test_frames_stage_without_colour_leaves_no_earlier_colour_copy(tmp_path):
+    path = tmp_path / "v.mp4"
+    write_colour_video(path)
+    out = tmp_path / "frames"
+    options = FrameOptions(width=320, height=180)
+    prepare_video_frames(path, out, options, colour_size=(640, 360))
+    assert (out / "colour.mkv").is_file()
+    result = prepare_video_frames(path, out, options)
+    assert result.colour_video_path is None and not (out / "colour.mkv").exists()
+
+
 def test_tracking_loss_starts_a_new_segment(terrain):
     """Fly along x, jump 150 m (nothing in common), fly on: two segments, each a good
     trajectory up to a similarity."""

@@ -16,6 +16,10 @@
   CSV index, so reconstruction does not decode the original (often 4K H.265) again.
   Given the tracker's frame step, only the frames the tracker will use are stored
   (about half of a 30 fps video): the others would be encoded and decoded for nothing.
+  Asked for a colour size, the same frames are also stored in colour at that size
+  (`colour.mkv`, CRF 18), for the orthophoto: its views are keyframes, chosen among
+  these, and without this copy the orthophoto decoded the original once more (at
+  2560 px, 7.5 of its 18 s).
 - `extract_still_frames`: frames at a fixed rate and a larger size as JPEGs (the `sfm`
   method's input, as the paper gave OpenDroneMap 3 fps at 2560 px).
 """
@@ -25,8 +29,9 @@ from __future__ import annotations
 import csv
 import time
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -38,7 +43,7 @@ import numpy as np
 from worker.pipeline.atomic import atomic_path
 from worker.pipeline.errors import InputError
 from worker.pipeline.ingest.arriving import Arrival
-from worker.pipeline.ingest.video import VideoFrame, VideoReader
+from worker.pipeline.ingest.video import VideoFrame, VideoReader, yuv420p_planes
 from worker.pipeline.progress import ProgressFn, no_progress
 
 
@@ -51,6 +56,7 @@ class FrameOptions:
     blur_window: int = 31
     min_sharpness: float = 2.0
     crf: int = 12
+    colour_crf: int = 18  # the orthophoto's colour copy: see the module doc
 
 
 @dataclass
@@ -163,6 +169,9 @@ class FramesResult:
     scan: FrameScan
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    # The stored frames in colour (see the module doc), when asked for.
+    colour_video_path: str | None = None
+    colour_size: tuple[int, int] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = {k: v for k, v in asdict(self).items() if k != "scan"}
@@ -225,6 +234,50 @@ T = TypeVar("T")
 
 FRAMES_VIDEO = "frames.mkv"
 FRAMES_INDEX = "frames.csv"
+COLOUR_VIDEO = "colour.mkv"
+# Frames waiting for the encoder at most: decoding waits beyond (memory stays bounded
+# whatever the video's size).
+_ENCODE_QUEUE = 8
+
+
+class _H264File:
+    """Frames appended to an H.264 Matroska file at `rate` frames per second, each
+    frame's time stamp its order (readers map them back through frames.csv). The file
+    is opened at the first frame, which says whether the video is full range (JPEG)."""
+
+    def __init__(self, path: Path, rate: int, size: tuple[int, int], crf: int, layout: str):
+        self.path, self.rate, self.size, self.crf = path, rate, size, crf
+        self.layout = layout  # how the arrays given are laid out: "gray" or "yuv420p"
+        self.full_range = False
+        self.container: av.container.OutputContainer | None = None
+        self.written = 0
+
+    def _open(self, full_range: bool) -> av.video.stream.VideoStream:
+        self.container = av.open(str(self.path), "w", format="matroska")
+        stream = self.container.add_stream("libx264", rate=self.rate)
+        stream.width, stream.height = self.size
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": str(self.crf), "preset": "ultrafast", "tune": "fastdecode"}
+        if full_range:
+            stream.codec_context.color_range = 2  # AVCOL_RANGE_JPEG
+        self.full_range = full_range
+        return stream
+
+    def write(self, image: np.ndarray, full_range: bool = False) -> None:
+        stream = self._open(full_range) if self.container is None else self.container.streams[0]
+        frame = av.VideoFrame.from_ndarray(image, format=self.layout)
+        if self.full_range:
+            frame.color_range = 2
+        frame.pts = self.written
+        self.written += 1
+        for packet in stream.encode(frame):
+            self.container.mux(packet)
+
+    def close(self) -> None:
+        stream = self._open(False) if self.container is None else self.container.streams[0]
+        for packet in stream.encode():
+            self.container.mux(packet)
+        self.container.close()
 
 
 def prepare_video_frames(
@@ -235,12 +288,15 @@ def prepare_video_frames(
     track_step_px: float = 0.0,
     track_max_gap_s: float = 0.5,
     arrival: Arrival | None = None,
+    colour_size: tuple[int, int] | None = None,
 ) -> FramesResult:
     """Decode, filter and store the frames for reconstruction (see the module doc).
 
     With `track_step_px` > 0 only the frames `tracking_frames` chooses with these
-    arguments are stored; with 0 every kept frame is. With `arrival`, the video is still
-    uploading: frames are decoded as its bytes arrive."""
+    arguments are stored; with 0 every kept frame is. With `colour_size` (width, height,
+    both even) the stored frames are also written in colour at that size (COLOUR_VIDEO).
+    With `arrival`, the video is still uploading: frames are decoded as its bytes
+    arrive."""
     start = time.perf_counter()
     options = options or FrameOptions()
     out_dir = Path(out_dir)
@@ -252,23 +308,35 @@ def prepare_video_frames(
     motion = MotionMeter((options.height, options.width))
     selector = TrackingSelector(track_step_px, track_max_gap_s)
     rows: list[list[str]] = []
-    target = out_dir / FRAMES_VIDEO
-    with atomic_path(target) as tmp:
-        container = av.open(str(tmp), "w", format="matroska")
-        stream = container.add_stream("libx264", rate=max(1, round(info.fps / options.every)))
-        stream.width, stream.height, stream.pix_fmt = options.width, options.height, "yuv420p"
-        stream.options = {"crf": str(options.crf), "preset": "ultrafast", "tune": "fastdecode"}
-        written = 0
+    rate = max(1, round(info.fps / options.every))
+    colour_path = out_dir / COLOUR_VIDEO
+    colour_path.unlink(missing_ok=True)  # never a copy of an earlier run's frames
+    with ExitStack() as outputs:
+        grey = _H264File(
+            outputs.enter_context(atomic_path(out_dir / FRAMES_VIDEO)),
+            rate,
+            (options.width, options.height),
+            options.crf,
+            "gray",
+        )
+        colour = None
+        if colour_size is not None:
+            colour = _H264File(
+                outputs.enter_context(atomic_path(colour_path)),
+                rate,
+                colour_size,
+                options.colour_crf,
+                "yuv420p",
+            )
 
-        def encode(image: np.ndarray, pts: int) -> None:
-            vf = av.VideoFrame.from_ndarray(image, format="gray")
-            vf.pts = pts
-            for packet in stream.encode(vf):
-                container.mux(packet)
+        def encode(frame: VideoFrame) -> None:
+            grey.write(frame.image)
+            if colour is not None and colour_size is not None and frame.source is not None:
+                colour.write(*yuv420p_planes(frame.source, *colour_size))
 
         # x264 encoding (with muxing), and sharpness with KLT motion, each run in a worker
         # thread of their own while this one decodes the next frame (PyAV and OpenCV
-        # release the GIL). Each worker takes its calls in the order given, so frames.mkv
+        # release the GIL). Each worker takes its calls in the order given, so the files
         # and frames.csv are what one thread would write.
         with (
             ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder,
@@ -276,14 +344,12 @@ def prepare_video_frames(
         ):
             encoding: deque[Future[None]] = deque()
 
-            def store(image: np.ndarray) -> None:
-                nonlocal written
-                encoding.append(encoder.submit(encode, image, written))
-                written += 1
-                while encoding and encoding[0].done():
+            def store(frame: VideoFrame) -> None:
+                encoding.append(encoder.submit(encode, frame))
+                while encoding and (encoding[0].done() or len(encoding) > _ENCODE_QUEUE):
                     encoding.popleft().result()  # raises what the encoder raised
 
-            pending: tuple[list[str], np.ndarray] | None = None  # last kept, not stored
+            pending: tuple[list[str], VideoFrame] | None = None  # last kept, not stored
 
             def measure(frame: VideoFrame) -> tuple[float, float]:
                 return sharpness(frame.image), motion.update(frame.t, frame.image)
@@ -304,17 +370,22 @@ def prepare_video_frames(
                 # Choose from the values frames.csv keeps, as the reconstruct stage will.
                 if selector.update(float(row[1]), float(row[3]), keep):
                     row[5] = "1"
-                    store(frame.image)
+                    store(frame)
                     pending = None
                 elif keep:
-                    pending = (row, frame.image)
+                    pending = (row, frame)
+                else:
+                    frame.source = None  # the decoded frame is not needed any more
                 if total and frame.index % 50 == 0:
                     progress(min(frame.index / total, 0.99))
 
             # Frame i is taken once frame i + 1 is decoded, and measured meanwhile.
             previous: tuple[VideoFrame, Future[tuple[float, float]]] | None = None
             size = (options.width, options.height)
-            for frame in reader.frames(size=size, every=options.every):
+            frames = reader.frames(
+                size=size, every=options.every, keep_source=colour_size is not None
+            )
+            for frame in frames:
                 current = (frame, measurer.submit(measure, frame))
                 if previous is not None:
                     take(*previous)
@@ -326,10 +397,10 @@ def prepare_video_frames(
                 store(pending[1])
             while encoding:
                 encoding.popleft().result()
-        for packet in stream.encode():
-            container.mux(packet)
-        container.close()
-        if written == 0:
+        grey.close()
+        if colour is not None:
+            colour.close()
+        if grey.written == 0:
             raise InputError(f"{Path(video_path).name}: every frame is blurred or blank")
     index_path = out_dir / FRAMES_INDEX
     with atomic_path(index_path) as tmp, open(tmp, "w", newline="") as fh:
@@ -339,7 +410,7 @@ def prepare_video_frames(
     progress(1.0)
     scan = _scan_from_rows([_parse_row(r) for r in rows])
     return FramesResult(
-        video_path=str(target),
+        video_path=str(out_dir / FRAMES_VIDEO),
         index_path=str(index_path),
         width=options.width,
         height=options.height,
@@ -347,6 +418,8 @@ def prepare_video_frames(
         scan=scan,
         seconds=time.perf_counter() - start,
         warnings=list(reader.warnings),
+        colour_video_path=str(colour_path) if colour is not None else None,
+        colour_size=colour_size if colour is not None else None,
     )
 
 
@@ -379,16 +452,29 @@ def read_frame_scan(index_path: Path) -> FrameScan:
         )
 
 
-def iter_prepared_frames(out_dir: Path) -> Iterator[VideoFrame]:
-    """The frames stored by `prepare_video_frames`, with their original times."""
+def iter_prepared_frames(
+    out_dir: Path, colour: bool = False, wanted: Callable[[float], bool] | None = None
+) -> Iterator[VideoFrame]:
+    """The frames stored by `prepare_video_frames`, with their original times: grey at
+    the processing size, or with `colour` BGR from its colour copy; with `wanted`, only
+    the frames whose original time it accepts (the others are decoded, not converted)."""
     scan = read_frame_scan(Path(out_dir) / FRAMES_INDEX)
     stored_t = scan.t[scan.stored]
     stored_index = scan.index[scan.stored]
-    reader = VideoReader(Path(out_dir) / FRAMES_VIDEO)
-    for i, frame in enumerate(reader.frames(gray=True)):
-        if i >= stored_t.size:
+    reader = VideoReader(Path(out_dir) / (COLOUR_VIDEO if colour else FRAMES_VIDEO))
+    position = -1  # of the frame being decoded: the reader asks about every frame in order
+
+    def take(_stamp: float) -> bool:
+        nonlocal position
+        position += 1
+        return position < stored_t.size and (wanted is None or wanted(float(stored_t[position])))
+
+    for frame in reader.frames(gray=not colour, wanted=take):
+        if position >= stored_t.size:
             break
-        yield VideoFrame(index=int(stored_index[i]), t=float(stored_t[i]), image=frame.image)
+        yield VideoFrame(
+            index=int(stored_index[position]), t=float(stored_t[position]), image=frame.image
+        )
 
 
 def prefetched(items: Iterable[T], depth: int = 4) -> Iterator[T]:

@@ -23,9 +23,10 @@ actually see that cell, so what stands up stays where it stands. Per cell:
 
 Views: the keyframes of the map, thinned so that no two kept cameras are closer than a
 fraction of a footprint (a 20 min flight has thousands of keyframes, and nearby ones add
-nothing but time). Their colour images come from the survey's own video (decoded once,
-only the chosen frames converted, at twice the processing size: the orthophoto is finer
-than the DSM where the imagery allows) or from its photos. Images and depth buffers are
+nothing but time). Their colour images come from the frames stage's colour copy of the
+frames it stored (at twice the processing size: the orthophoto is finer than the DSM
+where the imagery allows; only the chosen frames converted), or from the survey's own
+video in work folders made before that copy, or from its photos. Images and depth buffers are
 kept in memory-mapped files in a scratch folder, and the orthophoto is made tile by tile,
 so memory stays bounded whatever the survey's size.
 
@@ -52,6 +53,8 @@ from rasterio.windows import Window
 
 from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.errors import InputError
+from worker.pipeline.frames import iter_prepared_frames
+from worker.pipeline.ingest.video import VideoReader
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.slam.result import SparseMap
 
@@ -293,25 +296,29 @@ def _depth_buffer(
     return depth
 
 
-def video_view_images(
-    video: Path,
+def colour_view_size(
+    video_size: tuple[int, int], processing_size: tuple[int, int], colour_scale: float
+) -> tuple[int, int]:
+    """The size of the views' colour images: `colour_scale` times the processing size,
+    no larger than the video, both sides even (H.264's 4:2:0)."""
+    w0, h0 = processing_size
+    width = int(min(video_size[0], round(w0 * colour_scale))) // 2 * 2
+    return width, int(round(width * h0 / w0 / 2) * 2)
+
+
+def _frame_views(
+    frames: Callable[[Callable[[float], bool]], Iterator[Any]],
+    size: tuple[int, int],
     sparse: SparseMap,
     scan_t: np.ndarray,
     scan_sharpness: np.ndarray,
-    colour_scale: float,
+    fps: float,
 ) -> ViewImages:
-    """The keyframes' colour images decoded from the survey's video (only the frames at
-    keyframe times are converted), at `colour_scale` times the processing size but no
-    larger than the video."""
-    from worker.pipeline.ingest.video import VideoReader
-
-    reader = VideoReader(video)
-    info = reader.info
-    w0, h0 = sparse.size
-    width = int(min(info.width, round(w0 * colour_scale)))
-    height = int(round(width * h0 / w0 / 2) * 2)
+    """The keyframes' images from a stream of video frames (`frames(wanted)` yields
+    the frames whose time `wanted` accepts, each with `.t` and a BGR `.image`), matched
+    by time."""
     times = sparse.kf_t
-    tol = 0.25 / (info.fps or 30.0)
+    tol = 0.25 / fps
     sharp = {}
     if scan_t.size:
         nearest = np.clip(np.searchsorted(scan_t, times), 0, scan_t.size - 1)
@@ -326,11 +333,48 @@ def video_view_images(
             j = int(np.searchsorted(wanted, t))
             return any(0 <= k < wanted.size and abs(wanted[k] - t) <= tol for k in (j - 1, j))
 
-        for frame in VideoReader(video).frames(size=(width, height), gray=False, wanted=is_wanted):
+        for frame in frames(is_wanted):
             j = int(np.argmin(np.abs(keys - frame.t)))
             yield index_of[float(keys[j])], frame.image
 
-    return ViewImages(size=(width, height), load=load, sharpness=sharp)
+    return ViewImages(size=size, load=load, sharpness=sharp)
+
+
+def video_view_images(
+    video: Path,
+    sparse: SparseMap,
+    scan_t: np.ndarray,
+    scan_sharpness: np.ndarray,
+    colour_scale: float,
+) -> ViewImages:
+    """The keyframes' colour images decoded from the survey's video (only the frames at
+    keyframe times are converted), at `colour_scale` times the processing size but no
+    larger than the video."""
+    info = VideoReader(video).info
+    size = colour_view_size((info.width, info.height), sparse.size, colour_scale)
+
+    def frames(wanted: Callable[[float], bool]) -> Iterator[Any]:
+        return VideoReader(video).frames(size=size, gray=False, wanted=wanted)
+
+    return _frame_views(frames, size, sparse, scan_t, scan_sharpness, info.fps or 30.0)
+
+
+def stored_view_images(
+    frames_dir: Path,
+    size: tuple[int, int],
+    sparse: SparseMap,
+    scan_t: np.ndarray,
+    scan_sharpness: np.ndarray,
+    fps: float,
+) -> ViewImages:
+    """The keyframes' colour images from the frames stage's colour copy of the frames
+    it stored (frames.py, `colour.mkv`, of `size`): the survey's video is not decoded
+    again, nor needed any more."""
+
+    def frames(wanted: Callable[[float], bool]) -> Iterator[Any]:
+        return iter_prepared_frames(frames_dir, colour=True, wanted=wanted)
+
+    return _frame_views(frames, size, sparse, scan_t, scan_sharpness, fps)
 
 
 def still_view_images(paths: list[str], times: list[float], sparse: SparseMap) -> ViewImages:

@@ -15,6 +15,8 @@ files back typed. Layout of `work_dir`:
                                            summary, intrinsics, prior time offset
     frames/frames.mkv        frames        video: kept frames at the processing size
     frames/frames.csv        frames        per decoded frame: t, sharpness, motion, kept
+    frames/colour.mkv        frames        slam: the same frames in colour, for the
+                                           orthophoto (twice the processing size)
     frames/stills/*.jpg      frames        sfm on video: frames at 3 fps, <= 2560 px
     frames.json              frames        counts, time offset (estimated from motion)
     reconstruct/map.npz      reconstruct   the map in the reconstruction's own frame
@@ -62,6 +64,7 @@ from worker.pipeline.dsm_export import FILLED_MEASURED, DsmOptions, export_dsm
 from worker.pipeline.errors import InputError
 from worker.pipeline.footprints import overlap_figures, points_inside, survey_footprints
 from worker.pipeline.frames import (
+    COLOUR_VIDEO,
     FrameOptions,
     extract_still_frames,
     iter_prepared_frames,
@@ -92,7 +95,9 @@ from worker.pipeline.ingest.video import probe_video
 from worker.pipeline.orthophoto import (
     OrthophotoOptions,
     ViewImages,
+    colour_view_size,
     still_view_images,
+    stored_view_images,
     video_view_images,
     write_orthophoto,
 )
@@ -439,6 +444,15 @@ def frames(
         arrival = inputs.video_arrival() if inputs and inputs.video else None
         weight = 0.6 if method == "sfm" else 1.0
         slam = options.slam
+        colour_size = None
+        if method == "slam" and options.orthophoto.enabled:
+            # The orthophoto's views are keyframes, chosen among the stored frames.
+            info = probe_video(Path(video), arrival)
+            colour_size = colour_view_size(
+                (info.width, info.height),
+                (options.frames.width, options.frames.height),
+                options.orthophoto.colour_scale,
+            )
         result = prepare_video_frames(
             Path(video),
             work_dir / FRAMES_DIR,
@@ -448,6 +462,7 @@ def frames(
             track_step_px=slam.track_step_px if method == "slam" else 0.0,
             track_max_gap_s=slam.track_max_gap_s,
             arrival=arrival,
+            colour_size=colour_size,
         )
         out["frames"] = result.to_dict()
         prior = TimeOffset(**{**ing.time_offset_prior, "warnings": []})
@@ -797,7 +812,8 @@ def _view_images(
     inputs: ReconstructionInputs | None,
 ) -> ViewImages:
     """Where the keyframes' colours come from: the images the map was made of (sfm's
-    stills, a photo set), or the survey's video at keyframe times (slam)."""
+    stills, a photo set), or for slam the frames stage's colour copy of its frames
+    (else, in a work folder made before that copy, the survey's video)."""
     fr = _read_result(work_dir, FramesResult)
     if ing.method == "sfm" or ing.image_set:
         if fr.stills is not None and fr.still_times is not None:
@@ -808,10 +824,21 @@ def _view_images(
             paths = [m.path for m in image_set.images]
             return still_view_images(paths, image_set.image_times.tolist(), sparse)
         raise InputError("the frames stage wrote no stills to colour the orthophoto from")
+    scan = read_frame_scan(work_dir / FRAMES_DIR / "frames.csv")
+    frames = fr.frames or {}
+    colour_size = frames.get("colour_size")
+    if colour_size and (work_dir / FRAMES_DIR / COLOUR_VIDEO).is_file():
+        return stored_view_images(
+            work_dir / FRAMES_DIR,
+            (int(colour_size[0]), int(colour_size[1])),
+            sparse,
+            scan.t,
+            scan.sharpness,
+            float(frames.get("fps") or 30.0),
+        )
     video = inputs.paths()["video"] if inputs and inputs.video else ing.inputs["video"]
     if video is None or not Path(video).is_file():
         raise InputError("the survey's video is no longer where ingest read it")
-    scan = read_frame_scan(work_dir / FRAMES_DIR / "frames.csv")
     return video_view_images(
         Path(video), sparse, scan.t, scan.sharpness, options.orthophoto.colour_scale
     )

@@ -56,6 +56,9 @@ class VideoFrame:
     index: int  # index among all decoded frames (before any stride)
     t: float  # seconds since the first frame
     image: np.ndarray  # (H, W) uint8 grey or (H, W, 3) uint8 BGR
+    # The decoded frame itself, when asked for (`VideoReader.frames(keep_source=True)`):
+    # a caller that decides later whether it needs the frame at another size.
+    source: av.VideoFrame | None = None
 
 
 # Formats whose first plane is 8-bit luma, at full resolution.
@@ -83,6 +86,29 @@ def _gray(frame: av.VideoFrame, width: int | None, height: int | None) -> np.nda
     if full_range:
         return luma.copy() if luma.base is not None else luma  # not the decoder's buffer
     return cv2.LUT(luma, _LIMITED_TO_FULL)
+
+
+def yuv420p_planes(frame: av.VideoFrame, width: int, height: int) -> tuple[np.ndarray, bool]:
+    """The frame as YUV 4:2:0 of (width, height) (even), in the layout
+    `av.VideoFrame.from_ndarray(..., format="yuv420p")` takes (the luma rows, then U and
+    V), and whether it is full range (JPEG).
+
+    4:2:0 video (what drones record) has its planes resized by OpenCV's area averaging,
+    a fifth of the cost of FFmpeg's scaler, and keeps its range; other formats go
+    through the scaler, to limited range."""
+    full_range = frame.format.name == "yuvj420p" or frame.color_range == 2  # AVCOL_RANGE_JPEG
+    if frame.format.name not in ("yuv420p", "yuvj420p"):
+        scaled = frame.reformat(width=width, height=height, format="yuv420p", interpolation="AREA")
+        return scaled.to_ndarray(), False
+    planes = []
+    chroma = (width // 2, height // 2)
+    for plane, size in zip(frame.planes, ((width, height), chroma, chroma), strict=True):
+        data = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)
+        data = data[:, : plane.width]
+        if (plane.width, plane.height) != size:
+            data = cv2.resize(data, size, interpolation=cv2.INTER_AREA)
+        planes.append(data.reshape(-1))
+    return np.concatenate(planes).reshape(height * 3 // 2, width), full_range
 
 
 @contextmanager
@@ -173,10 +199,12 @@ class VideoReader:
         end_s: float | None = None,
         threads: int = 2,
         wanted: Callable[[float], bool] | None = None,
+        keep_source: bool = False,
     ) -> Iterator[VideoFrame]:
         """Yield every `every`-th frame in [start_s, end_s), resized to `size` (w, h);
         with `wanted`, only the frames whose time it accepts (the others are decoded,
-        as they must be, but not converted)."""
+        as they must be, but not converted); with `keep_source`, each with its decoded
+        frame."""
         name = self.path.name
         index = -1
         with _opened(self.path, self.arrival) as container:
@@ -225,7 +253,9 @@ class VideoReader:
                         width=width, height=height, format="bgr24", interpolation="AREA"
                     ).to_ndarray()
                 self.frames_decoded += 1
-                yield VideoFrame(index=index, t=t, image=image)
+                yield VideoFrame(
+                    index=index, t=t, image=image, source=frame if keep_source else None
+                )
         if index < 0:
             raise InputError(f"{name}: the video has no decodable frame")
 
