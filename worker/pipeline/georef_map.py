@@ -23,6 +23,12 @@ stated sigmas its frames between keyframes are put on the log's positions. Strai
 segments are adjusted too where the log's attitude holds their roll. The pose-prior
 adjustment above stays for photo sets and for `world_adjust=False`.
 
+A placed video segment whose cameras still miss the log (by more than its stated
+accuracy allows, or 5 m with stand-alone GPS) is looked at for breaks of the
+reconstruction's scale against the distances the log flew (scale_breaks.py): cut there,
+the pieces that keep one scale long enough are placed again on their own, the stretches
+between them left out with the reason.
+
 Photo sets (`photos`: the photo name of each camera time) are fitted by the robust
 photo fit (`robust_fit.georeference_photos`): outlier photos are named, left out of the
 fit and of the bundle adjustment's priors, and every photo's residual after the
@@ -56,6 +62,7 @@ from worker.pipeline.georef import (
 from worker.pipeline.georef_world import WorldAdjustOptions, adjust_segment
 from worker.pipeline.ingest.flight_log import FlightLog
 from worker.pipeline.robust_fit import georeference_photos, photo_table
+from worker.pipeline.scale_breaks import ScaleBreakOptions, split_at_scale_breaks
 from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
 from worker.pipeline.slam.result import SparseMap
 
@@ -75,6 +82,8 @@ class MapGeorefOptions:
     # Where the log states its accuracy (RTK), video segments are adjusted in the world
     # frame against the positions, the attitude and the offset instead (georef_world).
     world: WorldAdjustOptions = field(default_factory=WorldAdjustOptions)
+    # Video segments are cut where their scale breaks against the log (scale_breaks.py).
+    scale_breaks: ScaleBreakOptions = field(default_factory=ScaleBreakOptions)
     # Video segments are adjusted in the world frame (georef_world): against positions at
     # their stated sigmas (RTK) or at the spread of the fit's residuals (stand-alone GPS,
     # its drift removed). False: the pose-prior adjustment with the similarity undone.
@@ -134,12 +143,14 @@ def georeference_map(
     options = options or MapGeorefOptions()
     epsg = survey_epsg(log)
     accuracy = position_accuracy(log, options.georef)
-    adjusted: list[tuple[int, float]] = []  # (keyframes, offset) of adjusted segments
+    # Adjusted segments: (keyframes, offset the adjustment settled on).
+    adjusted: dict[int, tuple[int, float]] = {}
     results: list[dict[str, Any]] = []
     warnings: list[str] = []
     table: list[dict[str, Any]] | None = None if photos is None else []
-    several = len(sparse.segments) > 1
-    for segment in sparse.segments:
+
+    def place(segment: int, several: bool) -> dict[str, Any] | None:
+        """Fit and adjust one segment; its entry, or None where it was left out."""
         traj = sparse.trajectory(segment)
         try:
             if photos is None:
@@ -154,7 +165,7 @@ def georeference_map(
                 raise
             warnings.append(f"segment {segment} left out: {exc}")
             _drop_segment(sparse, segment)
-            continue
+            return None
         entry = {"segment": segment, "frames": len(traj), "fit": fit.to_dict()}
         # The outlier photos' GPS positions must not pull the adjustment either.
         excluded = _outlier_times(fit, traj.t, photos)
@@ -181,7 +192,7 @@ def georeference_map(
                 )
                 segment_offset = entry["refinement"]["offset_s"]
                 if entry["refinement"].get("kept"):
-                    adjusted.append((int((sparse.kf_segment == segment).sum()), segment_offset))
+                    adjusted[segment] = (int((sparse.kf_segment == segment).sum()), segment_offset)
             elif options.refine and fit.straightness < options.refine_min_straightness:
                 entry["refinement"] = {
                     "skipped": f"a near-straight track (straightness {fit.straightness:.3f}): "
@@ -197,15 +208,48 @@ def georeference_map(
         entry["residuals_after_m"] = _residuals(
             sparse, segment, log, segment_offset, epsg, excluded, fit.gnss_drift
         )
+        entry["offset_s"] = segment_offset
         if table is not None and photos is not None:
             # The fit's table is superseded by the one after the adjustment, below.
             entry["fit"].pop("photos", None)
-            table += _photo_rows(
-                sparse, segment, log, offset_s, epsg, photos, excluded, fit.gnss_drift
+            table.extend(
+                _photo_rows(sparse, segment, log, offset_s, epsg, photos, excluded, fit.gnss_drift)
             )
-        results.append(entry)
         if fit.photos is not None:
-            warnings += fit.warnings
+            warnings.extend(fit.warnings)
+        return entry
+
+    several = len(sparse.segments) > 1
+    for segment in sparse.segments:
+        if (entry := place(segment, several)) is not None:
+            results.append(entry)
+    if photos is None and options.scale_breaks.enabled and results:
+        # Breaks are looked for once the segments are placed and adjusted: with RTK the
+        # adjustment mends the scale jumps it can see, and only what it could not mend
+        # is cut. The pieces kept are placed again on their own.
+        placed = {
+            e["segment"]: (e["offset_s"], float(np.hypot(r["rms_east"], r["rms_north"])))
+            for e in results
+            if "rms_east" in (r := e.get("residuals_after_m") or {})
+        }
+        bound = (
+            options.scale_breaks.standalone_bound_m
+            if accuracy is None
+            else accuracy_bounds(accuracy, options.georef)[0]
+        )
+        cuts = split_at_scale_breaks(sparse, log, placed, epsg, bound, options.scale_breaks)
+        for piece in cuts.left_out:
+            warnings.append(f"segment {piece.segment} left out: {piece.reason}")
+            _drop_segment(sparse, piece.segment)
+        if cuts.cut:
+            results = [e for e in results if e["segment"] not in cuts.cut]
+            for segment in cuts.cut:
+                adjusted.pop(segment, None)
+            several = len(sparse.segments) > 1
+            for segment in cuts.kept:
+                if (entry := place(segment, several)) is not None:
+                    results.append(entry)
+            results.sort(key=lambda e: e["segment"])
     if not results:
         raise InputError(
             "no part of the reconstruction could be georeferenced: " + "; ".join(warnings)
@@ -214,14 +258,15 @@ def georeference_map(
         results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
         if dropped:
             sparse.update_frames_from_keyframes()
+    settled = max(adjusted.values())[1] if adjusted and not hold_offset else None
     return MapGeorefResult(
         crs=f"EPSG:{epsg}",
         segments=results,
-        time_offset_s=max(adjusted)[1] if adjusted and not hold_offset else offset_s,
+        time_offset_s=offset_s if settled is None else settled,
         seconds=time.perf_counter() - start,
         warnings=warnings,
         photos=table,
-        adjusted_offset_s=max(adjusted)[1] if adjusted and not hold_offset else None,
+        adjusted_offset_s=settled,
     )
 
 

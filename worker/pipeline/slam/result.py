@@ -227,6 +227,36 @@ class SparseMap:
     def _segment_mask(values: np.ndarray, segment: int | None) -> np.ndarray:
         return np.ones(values.size, bool) if segment is None else values == segment
 
+    def split_segment(self, segment: int, first_keyframe: int) -> int:
+        """Make keyframe `first_keyframe` (an index into the keyframe arrays) and the
+        later keyframes of `segment` a new segment; returns its number. Frames go with
+        the keyframe they are posed relative to (those without one, by time); a sparse
+        point with the keyframe of its first observation; dense points are in their
+        keyframe's frame and go with it."""
+        new = int(self.kf_segment.max()) + 1
+        in_segment = self.kf_segment == segment
+        moved = in_segment & (np.arange(self.kf_t.size) >= first_keyframe)
+        self.kf_segment = np.where(moved, new, self.kf_segment).astype(self.kf_segment.dtype)
+        frames = self.fr_segment == segment
+        ref = self.fr_ref_kf
+        follows = np.where(
+            ref >= 0, moved[np.maximum(ref, 0)], self.fr_t >= self.kf_t[first_keyframe]
+        )
+        self.fr_segment = np.where(frames & follows, new, self.fr_segment).astype(
+            self.fr_segment.dtype
+        )
+        points = np.flatnonzero(self.point_segment == segment)
+        if points.size and self.obs_kf.size:
+            order = np.lexsort((self.obs_kf, self.obs_point))
+            ids, first = np.unique(self.obs_point[order], return_index=True)
+            first_kf = self.obs_kf[order][first]
+            at = np.searchsorted(ids, self.point_id[points])
+            seen = (at < ids.size) & (ids[np.minimum(at, ids.size - 1)] == self.point_id[points])
+            later = np.zeros(points.size, bool)
+            later[seen] = moved[first_kf[at[seen]]]
+            self.point_segment[points[later]] = new
+        return new
+
     def update_frames_from_keyframes(self) -> None:
         """Recompute every non-keyframe pose from its reference keyframe's pose."""
         ref = self.fr_ref_kf
