@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from pyproj import Transformer
 
+from tests.reconstruction.position_log import position_log
 from worker.pipeline.attitude import rotation_world_from_camera
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
-from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.quality import survey_quality
 from worker.pipeline.scale_breaks import ScaleBreakOptions, consistent_runs, local_scales
 from worker.pipeline.slam.result import SparseMap
@@ -33,15 +33,8 @@ def stand_alone_log(seed: int):
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 115.0, 0.1)
     drift = np.cumsum(rng.normal(0, 0.02, (t.size, 3)), axis=0)
-    pos = ORIGIN + true_path(t) + [2.0, -1.5, 3.0] + drift + rng.normal(0, 0.3, (t.size, 3))
-    lon, lat = Transformer.from_crs(f"EPSG:{EPSG}", "EPSG:4326", always_xy=True).transform(
-        pos[:, 0], pos[:, 1]
-    )
-    rows = [
-        {"line": i + 2, "t": float(t[i]), "lat": lat[i], "lon": lon[i], "alt": pos[i, 2]}
-        for i in range(t.size)
-    ]
-    return build_flight_log("flight.csv", "generic_csv", rows)
+    positions = ORIGIN + true_path(t) + [2.0, -1.5, 3.0] + drift + rng.normal(0, 0.3, (t.size, 3))
+    return position_log(t, positions, EPSG)
 
 
 def map_centres(collapse: bool) -> np.ndarray:

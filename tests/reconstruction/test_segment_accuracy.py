@@ -4,12 +4,11 @@ worker/pipeline/georef_map.py `_check_segments`)."""
 
 import numpy as np
 import pytest
-from pyproj import Transformer
 
+from tests.reconstruction.position_log import position_log
 from worker.pipeline.attitude import rotation_world_from_camera
 from worker.pipeline.georef import GeorefOptions
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
-from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.quality import survey_quality
 from worker.pipeline.slam.result import SparseMap
 
@@ -27,15 +26,8 @@ def _true_path(t: np.ndarray) -> np.ndarray:
 def _log(seed: int = 0):
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 120.0, 0.5)
-    pos = _true_path(t) + rng.normal(0, 1.0, (t.size, 3)) * RTK
-    lon, lat = Transformer.from_crs(f"EPSG:{EPSG}", "EPSG:4326", always_xy=True).transform(
-        pos[:, 0], pos[:, 1]
-    )
-    rows = [
-        {"line": i + 2, "t": float(t[i]), "lat": lat[i], "lon": lon[i], "alt": pos[i, 2]}
-        for i in range(t.size)
-    ]
-    return build_flight_log("flight.csv", "generic_csv", rows)
+    positions = _true_path(t) + rng.normal(0, 1.0, (t.size, 3)) * RTK
+    return position_log(t, positions, EPSG)
 
 
 def _map(segments: list[tuple[np.ndarray, bool]], seed: int = 1) -> SparseMap:

@@ -53,7 +53,7 @@ from rasterio.windows import Window
 
 from worker.pipeline.cog import RasterRole, write_cog
 from worker.pipeline.errors import InputError
-from worker.pipeline.frames import iter_prepared_frames
+from worker.pipeline.frames import FrameScan, iter_prepared_frames
 from worker.pipeline.ingest.video import VideoReader
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.slam.result import SparseMap
@@ -310,19 +310,18 @@ def _frame_views(
     frames: Callable[[Callable[[float], bool]], Iterator[Any]],
     size: tuple[int, int],
     sparse: SparseMap,
-    scan_t: np.ndarray,
-    scan_sharpness: np.ndarray,
+    scan: FrameScan,
     fps: float,
 ) -> ViewImages:
     """The keyframes' images from a stream of video frames (`frames(wanted)` yields
     the frames whose time `wanted` accepts, each with `.t` and a BGR `.image`), matched
-    by time."""
+    by time; their sharpness from the frames stage's `scan`."""
     times = sparse.kf_t
     tol = 0.25 / fps
     sharp = {}
-    if scan_t.size:
-        nearest = np.clip(np.searchsorted(scan_t, times), 0, scan_t.size - 1)
-        sharp = {i: float(scan_sharpness[n]) for i, n in enumerate(nearest.tolist())}
+    if scan.t.size:
+        nearest = np.clip(np.searchsorted(scan.t, times), 0, scan.t.size - 1)
+        sharp = {i: float(scan.sharpness[n]) for i, n in enumerate(nearest.tolist())}
 
     def load(indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
         wanted = np.sort(times[indices])
@@ -341,11 +340,7 @@ def _frame_views(
 
 
 def video_view_images(
-    video: Path,
-    sparse: SparseMap,
-    scan_t: np.ndarray,
-    scan_sharpness: np.ndarray,
-    colour_scale: float,
+    video: Path, sparse: SparseMap, scan: FrameScan, colour_scale: float
 ) -> ViewImages:
     """The keyframes' colour images decoded from the survey's video (only the frames at
     keyframe times are converted), at `colour_scale` times the processing size but no
@@ -356,16 +351,11 @@ def video_view_images(
     def frames(wanted: Callable[[float], bool]) -> Iterator[Any]:
         return VideoReader(video).frames(size=size, gray=False, wanted=wanted)
 
-    return _frame_views(frames, size, sparse, scan_t, scan_sharpness, info.fps or 30.0)
+    return _frame_views(frames, size, sparse, scan, info.fps or 30.0)
 
 
 def stored_view_images(
-    frames_dir: Path,
-    size: tuple[int, int],
-    sparse: SparseMap,
-    scan_t: np.ndarray,
-    scan_sharpness: np.ndarray,
-    fps: float,
+    frames_dir: Path, size: tuple[int, int], sparse: SparseMap, scan: FrameScan, fps: float
 ) -> ViewImages:
     """The keyframes' colour images from the frames stage's colour copy of the frames
     it stored (frames.py, `colour.mkv`, of `size`): the survey's video is not decoded
@@ -374,7 +364,7 @@ def stored_view_images(
     def frames(wanted: Callable[[float], bool]) -> Iterator[Any]:
         return iter_prepared_frames(frames_dir, colour=True, wanted=wanted)
 
-    return _frame_views(frames, size, sparse, scan_t, scan_sharpness, fps)
+    return _frame_views(frames, size, sparse, scan, fps)
 
 
 def still_view_images(paths: list[str], times: list[float], sparse: SparseMap) -> ViewImages:

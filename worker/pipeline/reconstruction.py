@@ -832,16 +832,13 @@ def _view_images(
             work_dir / FRAMES_DIR,
             (int(colour_size[0]), int(colour_size[1])),
             sparse,
-            scan.t,
-            scan.sharpness,
+            scan,
             float(frames.get("fps") or 30.0),
         )
     video = inputs.paths()["video"] if inputs and inputs.video else ing.inputs["video"]
     if video is None or not Path(video).is_file():
         raise InputError("the survey's video is no longer where ingest read it")
-    return video_view_images(
-        Path(video), sparse, scan.t, scan.sharpness, options.orthophoto.colour_scale
-    )
+    return video_view_images(Path(video), sparse, scan, options.orthophoto.colour_scale)
 
 
 def _dense_point_spacing(sparse: SparseMap, gsd: float, options: ReconstructionOptions) -> float:
