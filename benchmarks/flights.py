@@ -41,6 +41,12 @@ as georeferenced), the georeferencing residuals of georeference.json and whether
 segment is within the log's stated accuracy, stage times, real-time factor; every
 `--sfm-every`th flight also with `sfm`, for the sfm / slam wall-time ratio.
 benchmarks/flights_summary.py summarises them per scenario and GNSS mode.
+
+A change to the stages after the reconstruct stage is measured on the same
+reconstructions with `--from-stage georeference` (or dsm, orthophoto) on an earlier
+run's work dir: the simulations and the reconstruct stage are reused, the later stages
+run again, and the wall-time figures are left out (minutes for a run of flights that
+took hours).
 """
 
 from __future__ import annotations
@@ -60,6 +66,7 @@ from dsm_truth import coregistered_error, dsm_errors, read_truth_trajectory, tra
 
 from worker.pipeline.errors import InputError
 from worker.pipeline.reconstruction import (
+    STAGES,
     ReconstructionInputs,
     ReconstructionOptions,
     reconstruct_survey,
@@ -131,6 +138,15 @@ class FlightSettings:
     # A rolling-shutter flight's readout time is given to the pipeline, as a user who
     # knows their camera gives it (False: not given, the shutter not modelled).
     readout_given: bool = True
+    # Reuse each flight's reconstruction from an earlier run in the same work dir and
+    # run the stages from this one on (after a change to them: the same reconstructions,
+    # before and after); a flight without one is reconstructed whole. None: every stage.
+    from_stage: str | None = None
+
+
+# What is given to the pipeline, not to the simulator: a change of these reuses the
+# simulations.
+_PIPELINE_SETTINGS = ("readout_given", "from_stage")
 
 
 @dataclass(frozen=True)
@@ -258,7 +274,7 @@ def run_flight(
     sim_dir = work / "sim"
     stamp = work / "conditions.json"
     # What the simulation depends on (not what is given to the pipeline).
-    simulated = {k: v for k, v in asdict(settings).items() if k != "readout_given"}
+    simulated = {k: v for k, v in asdict(settings).items() if k not in _PIPELINE_SETTINGS}
     wanted = json.dumps({"conditions": cond.to_dict(), "settings": simulated})
     start = time.perf_counter()
     cached = (sim_dir / "manifest.json").is_file() and stamp.is_file()
@@ -278,15 +294,19 @@ def run_flight(
         if settings.readout_given
         else 0.0
     )
-    slam = _reconstruct(manifest, survey, work / "slam", "slam", cond.gnss, readout)
+    slam = _reconstruct(
+        manifest, survey, work / "slam", "slam", cond.gnss, readout, settings.from_stage
+    )
     record["slam"] = slam
     record["success"] = slam["success"]
     if with_sfm:
-        sfm = _reconstruct(manifest, survey, work / "sfm", "sfm", cond.gnss, readout)
+        sfm = _reconstruct(
+            manifest, survey, work / "sfm", "sfm", cond.gnss, readout, settings.from_stage
+        )
         kept = ("success", "failure", "wall_seconds", "quality_passed")
         record["sfm"] = {k: sfm[k] for k in kept if k in sfm}
         record["sfm"]["dsm_nmad_as_georeferenced_px"] = sfm.get("dsm_nmad_as_georeferenced_px")
-        if slam["success"] and sfm["success"]:
+        if slam["success"] and sfm["success"] and slam["wall_seconds"] and sfm["wall_seconds"]:
             record["sfm_over_slam_wall_time"] = round(sfm["wall_seconds"] / slam["wall_seconds"], 2)
     return record
 
@@ -316,11 +336,16 @@ def _reconstruct(
     method: str,
     gnss: str,
     readout_s: float = 0.0,
+    from_stage: str | None = None,
 ) -> dict[str, Any]:
     """One reconstruction of the survey and its figures against the truth. A flight the
     pipeline turns down (InputError) is a failure with its message; so is any other
-    error, with its type, so that one flight does not end the whole benchmark."""
-    shutil.rmtree(run, ignore_errors=True)
+    error, with its type, so that one flight does not end the whole benchmark. With
+    `from_stage`, an earlier run's stages before it are reused where that run got past
+    the reconstruct stage; its wall-time figures are then left out."""
+    reused = from_stage is not None and (run / "reconstruct.json").is_file()
+    if not reused:
+        shutil.rmtree(run, ignore_errors=True)
     inputs = ReconstructionInputs(
         video=str(manifest.resolve(survey["video"])),
         log=str(manifest.resolve(survey["flight_log_csv"])),
@@ -328,7 +353,7 @@ def _reconstruct(
     start = time.perf_counter()
     try:
         options = reconstruction_options(method, gnss, readout_s)
-        result = reconstruct_survey(inputs, run, options)
+        result = reconstruct_survey(inputs, run, options, from_stage=from_stage if reused else None)
     except InputError as exc:
         return _failed("input_error", str(exc), start)
     except Exception as exc:  # reported per flight: see the docstring
@@ -336,8 +361,16 @@ def _reconstruct(
         return _failed("error", detail, start)
     wall = time.perf_counter() - start
     out: dict[str, Any] = {"success": True, "wall_seconds": round(wall, 2)}
+    results = dict(result.results)
+    for stage in STAGES:  # the reused stages' results
+        if stage not in results:
+            results[stage] = json.loads((run / f"{stage}.json").read_text())
     # sfm too: its speed is only worth comparing where its result is as good.
-    out.update(_against_truth(run, result.results, manifest, survey, wall))
+    out.update(_against_truth(run, results, manifest, survey, wall))
+    if reused:
+        # Part of the pipeline ran: no whole-pipeline time to report.
+        out.update({"reused_before": from_stage, "wall_seconds": None})
+        out["real_time_factor_pipeline"] = None
     return out
 
 

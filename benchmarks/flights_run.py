@@ -33,10 +33,12 @@ def run(
     sfm_every: int = 5,
     fixed: FixedConditions | None = None,
     readout_given: bool = True,
+    from_stage: str | None = None,
 ) -> dict[str, Any]:
     """Run the flights of `seeds` and write the report; returns it with its table.
     `fixed`: what every flight holds the same instead of drawing it; `readout_given`:
-    a rolling-shutter flight's readout is given to the pipeline (FlightSettings)."""
+    a rolling-shutter flight's readout is given to the pipeline; `from_stage`: reuse
+    the reconstructions in `work_dir` up to that stage (FlightSettings)."""
     width, height, fps = video
     settings = FlightSettings(
         width=width,
@@ -44,6 +46,7 @@ def run(
         fps=fps,
         video_seconds=(video_seconds, video_seconds) if video_seconds else (20.0, 30.0),
         readout_given=readout_given,
+        from_stage=from_stage,
     )
     warm_imports()
     report: dict[str, Any] = {
@@ -57,6 +60,7 @@ def run(
             "fps": fps,
             "video_seconds": list(settings.video_seconds),
             "readout_given": readout_given,
+            "from_stage": from_stage,
             "fixed": asdict(fixed or FixedConditions()),
         },
         "targets": [t.__dict__ for t in TARGETS],
@@ -87,7 +91,9 @@ def _line(record: dict[str, Any]) -> str:
     slam = record["slam"]
     nmad = slam["dsm_nmad_as_georeferenced_px"]
     nmad_text = "-" if nmad is None else f"{nmad:.2f}"
+    wall = slam["wall_seconds"]
+    took = f"from {slam['reused_before']} on" if wall is None else f"{wall:.0f} s"
     return (
         f"{head}: NMAD {nmad_text} px as georeferenced, "
-        f"{slam['dsm_nmad_coregistered_px']:.2f} px co-registered, {slam['wall_seconds']:.0f} s"
+        f"{slam['dsm_nmad_coregistered_px']:.2f} px co-registered, {took}"
     )

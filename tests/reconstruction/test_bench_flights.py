@@ -220,3 +220,33 @@ def test_one_tiny_flight_through_the_command(tmp_path):
     assert "dsm_nmad_coregistered_px" in result.output
     assert data["by_condition"]["none"]["seeds"] == [1]
     assert "by condition" in result.output
+
+
+def test_a_run_from_a_later_stage_reuses_the_reconstructions(tmp_path):
+    """`--from-stage georeference` on the work dir of an earlier run: the same
+    simulation and reconstruct stage, the later stages run again, no wall time."""
+    out = tmp_path / "flights.json"
+    args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
+    args += ["--scenario", "paper-mounds", "--video-seconds", "4", "--sfm-every", "0"]
+    args += ["--first-seed", "1", "--gnss", "rtk", "--plan", "lawnmower", "--plain"]
+    args += ["--width", "192", "--height", "108", "--fps", "10"]
+    assert CliRunner().invoke(reconstruction, args).exit_code == 0
+    run = tmp_path / "work" / "seed0001" / "slam"
+    first = json.loads(out.read_text())["flights"][0]
+    reconstructed = (run / "reconstruct.json").read_bytes()
+    georeferenced = (run / "georeference.json").stat().st_mtime_ns
+    result = CliRunner().invoke(reconstruction, [*args, "--from-stage", "georeference"])
+    assert result.exit_code == 0, result.output
+    again = json.loads(out.read_text())
+    (flight,) = again["flights"]
+    assert again["settings"]["from_stage"] == "georeference"
+    assert (run / "reconstruct.json").read_bytes() == reconstructed
+    assert (run / "georeference.json").stat().st_mtime_ns > georeferenced
+    assert flight["simulation_seconds"] < first["simulation_seconds"]  # not simulated again
+    assert flight["slam"]["reused_before"] == "georeference"
+    assert flight["slam"]["wall_seconds"] is None
+    assert flight["slam"]["real_time_factor_pipeline"] is None
+    assert "from georeference on" in result.output
+    # The same reconstruction, the same stages: the same figures.
+    for key in ("dsm_nmad_as_georeferenced_px", "dsm_nmad_coregistered_px", "completeness"):
+        assert flight["slam"][key] == first["slam"][key]

@@ -121,6 +121,14 @@ def load_benchmark(name: str) -> ModuleType:
     help="With --flights: do not give a rolling-shutter flight's readout to the pipeline "
     "(a user who does not know it); by default it is given, as the camera's.",
 )
+@click.option(
+    "--from-stage",
+    type=click.Choice(["georeference", "dsm", "orthophoto"]),
+    default=None,
+    help="With --flights: reuse each flight's reconstruction from an earlier run in the "
+    "same --work-dir and run the stages from this one on (to measure a change to them on "
+    "the same reconstructions); wall times are then not reported.",
+)
 @click.pass_context
 def reconstruction(
     ctx: click.Context,
@@ -142,6 +150,7 @@ def reconstruction(
     plain: bool,
     rolling_shutter_ms: float | None,
     no_readout: bool,
+    from_stage: str | None,
 ) -> None:
     """Wall time slam vs sfm, real-time factor, DSM, trajectory and georeferencing error."""
     if flights > 0:
@@ -169,6 +178,7 @@ def reconstruction(
             sfm_every,
             fixed,
             readout_given=not no_readout,
+            from_stage=from_stage,
         )
         click.echo(report["table"])
         return

@@ -447,9 +447,11 @@ def frames(
         colour_size = None
         if method == "slam" and options.orthophoto.enabled:
             # The orthophoto's views are keyframes, chosen among the stored frames.
-            info = probe_video(Path(video), arrival)
+            # The video's size as ingest probed it (an upload still arriving is not
+            # probed twice).
+            probed = ing.video or probe_video(Path(video), arrival).to_dict()
             colour_size = colour_view_size(
-                (info.width, info.height),
+                (int(probed["width"]), int(probed["height"])),
                 (options.frames.width, options.frames.height),
                 options.orthophoto.colour_scale,
             )
