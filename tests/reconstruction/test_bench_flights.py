@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -198,7 +199,10 @@ def test_a_miss_the_report_tells_is_not_silent():
     assert "quality verdict failed: seeds 3, 5" in flights_summary.table(summary)
 
 
-def test_one_tiny_flight_through_the_command(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory) -> tuple[list[str], object, dict]:
+    """One tiny flight through the command: its arguments, CLI result and JSON."""
+    tmp_path = tmp_path_factory.mktemp("flights")
     out = tmp_path / "flights.json"
     args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
     # Seed 1 draws a cross pattern and stand-alone GPS; --plain and --gnss hold them off.
@@ -207,7 +211,11 @@ def test_one_tiny_flight_through_the_command(tmp_path):
     args += ["--width", "192", "--height", "108", "--fps", "10"]
     result = CliRunner().invoke(reconstruction, args)
     assert result.exit_code == 0, result.output
-    data = json.loads(out.read_text())
+    return args, result, json.loads(out.read_text())
+
+
+def test_one_tiny_flight_through_the_command(tiny_run):
+    _, result, data = tiny_run
     (flight,) = data["flights"]
     assert flight["conditions"]["seed"] == 1 and flight["conditions"]["video_seconds"] == 4.0
     assert flight["conditions"]["drawn"] == []
@@ -222,22 +230,18 @@ def test_one_tiny_flight_through_the_command(tmp_path):
     assert "by condition" in result.output
 
 
-def test_a_run_from_a_later_stage_reuses_the_reconstructions(tmp_path):
+def test_a_run_from_a_later_stage_reuses_the_reconstructions(tiny_run):
     """`--from-stage georeference` on the work dir of an earlier run: the same
     simulation and reconstruct stage, the later stages run again, no wall time."""
-    out = tmp_path / "flights.json"
-    args = ["--flights", "1", "--json", str(out), "--work-dir", str(tmp_path / "work")]
-    args += ["--scenario", "paper-mounds", "--video-seconds", "4", "--sfm-every", "0"]
-    args += ["--first-seed", "1", "--gnss", "rtk", "--plan", "lawnmower", "--plain"]
-    args += ["--width", "192", "--height", "108", "--fps", "10"]
-    assert CliRunner().invoke(reconstruction, args).exit_code == 0
-    run = tmp_path / "work" / "seed0001" / "slam"
-    first = json.loads(out.read_text())["flights"][0]
+    args, _, first_data = tiny_run
+    (first,) = first_data["flights"]
+    out = args[args.index("--json") + 1]
+    run = Path(args[args.index("--work-dir") + 1]) / "seed0001" / "slam"
     reconstructed = (run / "reconstruct.json").read_bytes()
     georeferenced = (run / "georeference.json").stat().st_mtime_ns
     result = CliRunner().invoke(reconstruction, [*args, "--from-stage", "georeference"])
     assert result.exit_code == 0, result.output
-    again = json.loads(out.read_text())
+    again = json.loads(Path(out).read_text())
     (flight,) = again["flights"]
     assert again["settings"]["from_stage"] == "georeference"
     assert (run / "reconstruct.json").read_bytes() == reconstructed
