@@ -108,6 +108,10 @@ class GeorefOptions:
     # accuracy the log promises: reported, as the cameras or the log are then wrong.
     stated_accuracy_factor: float = 3.0
     reconstruction_allowance_m: float = 0.05
+    # Logs stating no accuracy (stand-alone GPS): the fit absorbs the GNSS bias, and what
+    # is left is the drift within the flight, about 0.5-1 m; residuals of several metres
+    # mean a distorted reconstruction or a wrong log rather than GPS noise.
+    max_standalone_residual_m: float = 5.0
     # The log's position accuracy (1-sigma east, north, up, m) when the log states none
     # itself, as the user declares it: (0.02, 0.02, 0.04) for an RTK drone. None: only
     # what the log states (RTK photos) is checked.

@@ -233,7 +233,7 @@ def georeference_map(
             if "rms_east" in (r := e.get("residuals_after_m") or {})
         }
         bound = (
-            options.scale_breaks.standalone_bound_m
+            options.georef.max_standalone_residual_m
             if accuracy is None
             else accuracy_bounds(accuracy, options.georef)[0]
         )

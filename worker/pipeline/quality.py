@@ -58,10 +58,9 @@ class QualityBounds:
     # shows the bound the georeference checked against.
     stated_accuracy_factor: float = GeorefOptions.stated_accuracy_factor
     reconstruction_allowance_m: float = GeorefOptions.reconstruction_allowance_m
-    # Logs stating no accuracy (stand-alone GPS): the fit absorbs the GNSS bias, and what
-    # is left is the drift within the flight, about 0.5-1 m; residuals of several metres
-    # mean a distorted reconstruction or a wrong log rather than GPS noise.
-    max_standalone_residual_m: float = 5.0
+    # Logs stating no accuracy (stand-alone GPS): the georeference's bound (its scale-break
+    # cut uses the same).
+    max_standalone_residual_m: float = GeorefOptions.max_standalone_residual_m
     # Below this share of measured cells where two or more cameras overlap, the DSM there
     # is mostly interpolated, and a change detected there mostly guessed.
     min_overlap_coverage: float = 0.8

@@ -46,11 +46,6 @@ class ScaleBreakOptions:
     # (a broken stretch falls into many short runs), or short beside the longest run.
     min_run_keyframes: int = 12
     min_run_share: float = 0.25  # of the segment's longest run
-    # Only a segment whose cameras miss the log by more than the bound is cut, and only
-    # where every piece kept fits the log within it on its own. The bound: the stated
-    # accuracy's (georef.accuracy_bounds), else this, the survey verdict's bound for
-    # stand-alone GPS (quality.QualityBounds.max_standalone_residual_m).
-    standalone_bound_m: float = 5.0
 
 
 def local_scales(world: np.ndarray, centres: np.ndarray, min_travel_m: float) -> np.ndarray:
