@@ -20,6 +20,7 @@ from worker.pipeline.footprints import (
     points_inside,
     survey_footprints,
     view_count,
+    viewpoint_groups,
 )
 from worker.pipeline.reconstruction import (
     GEOREF_MAP,
@@ -99,6 +100,35 @@ def test_two_overlapping_cameras_give_the_known_overlap_area():
     area, coverage = overlap_figures(views, np.ones((60, 140), bool), east)
     assert area == pytest.approx(2000.0)
     assert coverage == pytest.approx(0.5)
+
+
+def test_keyframes_closer_than_a_stereo_baseline_share_a_viewpoint():
+    """At 50 m, 0.04 of the depth is 2 m: a video's keyframes while the aircraft hovers
+    or turns on the spot are one viewpoint, and the next one starts 2 m on."""
+    centres = np.array([[0, 0, 50], [0.5, 0, 50], [1.9, 0, 50], [2.1, 0, 50], [4.5, 0, 50.0]])
+    depths = np.full(len(centres), 50.0)
+    assert viewpoint_groups(centres, depths, 0.04).tolist() == [0, 0, 0, 1, 2]
+    # A keyframe without a depth stands alone.
+    depths[0] = np.nan
+    assert viewpoint_groups(centres, depths, 0.04).tolist() == [0, 1, 1, 1, 2]
+
+
+def test_overlap_seen_from_one_place_only_is_not_stereo_overlap():
+    """Three keyframes within a metre of each other at 50 m (one viewpoint, x -50 .. 51)
+    and one 60 m east (x 10 .. 110): they overlap over 41 x 50 m only, not over the
+    first three's whole footprint (which every keyframe beyond the first sees again),
+    and a DSM measured over the shared strip alone covers all of the overlap."""
+    centres = [(0.0, 0.0), (0.5, 0.0), (1.0, 0.0), (60.0, 0.0)]
+    ground = ground_lattice(-50.0, -25.0, 110.0, 25.0, 1.0)
+    sparse = survey_map(centres, 50.0, ground)
+    seen = survey_footprints(sparse, 1.0)
+    assert seen is not None and len(seen.viewpoints) == 2
+    transform = Affine(1.0, 0.0, -60.0, 0.0, -1.0, 30.0)
+    measured = np.zeros((60, 230), bool)
+    measured[:, 60 + 10 : 60 + 51] = True  # x 10 .. 51: the shared strip
+    area, coverage = overlap_figures(seen.viewpoints, measured, transform)
+    assert area == pytest.approx(41.0 * 50.0)
+    assert coverage == pytest.approx(1.0)
 
 
 def test_points_inside_a_region_by_cell():
@@ -350,7 +380,7 @@ def test_a_view_meets_the_crowns_before_the_ground_between_them():
     crowns[:, 2] = 10.0
     sparse = survey_map([(0.0, 0.0)], 50.0, np.vstack([ground, crowns]))
     seen = survey_footprints(sparse, 1.0)
-    assert seen is not None and seen.views[0].area == pytest.approx(80.0 * 40.0, rel=0.01)
+    assert seen is not None and seen.viewpoints[0].area == pytest.approx(80.0 * 40.0, rel=0.01)
     (fitted,) = camera_footprints(sparse)
     assert fitted.area > 96.0 * 48.0
     assert seen.reach.contains(fitted)

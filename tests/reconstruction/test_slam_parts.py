@@ -150,16 +150,42 @@ def test_pose_priors_move_the_model_onto_gnss():
     assert np.median(err) < 0.1
 
 
-@pytest.mark.parametrize(("heading", "move"), [(0.0, (0.0, 6.0, 0.0)), (90.0, (6.0, 0.0, 0.0))])
-def test_sgbm_densification_recovers_the_surface(terrain, heading, move):
+def _seen(grid: Grid, dsm: np.ndarray, centre: np.ndarray, r_cw: np.ndarray) -> np.ndarray:
+    """Points of the surface a camera sees, in its frame (what the sparse map gives)."""
+    x, y = grid.mesh()
+    world = np.column_stack([x[::40, ::40].ravel(), y[::40, ::40].ravel(), dsm[::40, ::40].ravel()])
+    cam = (world - centre) @ r_cw.T
+    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
+    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    return cam[(cam[:, 2] > 0) & (u >= 0) & (u < 640) & (v >= 0) & (v < 360)]
+
+
+@pytest.mark.parametrize(
+    ("heading", "heading_b", "move", "bias_m"),
+    [
+        (0.0, 0.0, (0.0, 6.0, 0.0), 0.07),  # along the image's vertical axis
+        (90.0, 90.0, (6.0, 0.0, 0.0), 0.07),
+        (0.0, 0.0, (0.0, -6.0, 0.0), 0.07),  # the second camera behind the first
+        # Climbing and descending at 45 degrees: the views, tilted by as much, are drawn
+        # at half the focal length, and the two images' ground at scales 8 % apart.
+        (0.0, 0.0, (0.0, 5.0, 5.0), 0.12),
+        (0.0, 0.0, (0.0, 5.0, -5.0), 0.12),
+        (0.0, 25.0, (3.0, 5.0, 0.0), 0.07),  # in a turn
+    ],
+)
+def test_sgbm_densification_recovers_the_surface(terrain, heading, heading_b, move, bias_m):
     grid, dsm, renderer = terrain
     ca = np.array([0.0, 0.0, 110.0])
     cb = ca + move
     ga, r = render_gray(renderer, ca, heading)
-    gb, _ = render_gray(renderer, cb, heading)
-    r_cw = r.T
-    pts = densify_pair(ga, gb, K, (r_cw, -r_cw @ ca), (r_cw, -r_cw @ cb), (50.0, 70.0))
-    assert len(pts) > 20000
+    gb, r_b = render_gray(renderer, cb, heading_b)
+    r_cw, r_cw_b = r.T, r_b.T
+    seen = _seen(grid, dsm, ca, r_cw)
+    pts = densify_pair(ga, gb, K, (r_cw, -r_cw @ ca), (r_cw_b, -r_cw_b @ cb), seen)
+    # Of the 640 x 360 / 4 = 57 600 pixels sampled, most: the second camera sees most of
+    # the first's ground (OpenCV's rectification, cropping to what both keep, gave 29 000
+    # on the climb and the descent, 37 000 in the turn).
+    assert len(pts) > 40000
     world = pts @ r_cw + ca
     col, row = grid.col_row(world[:, 0], world[:, 1])
     truth = dsm[
@@ -167,8 +193,11 @@ def test_sgbm_densification_recovers_the_surface(terrain, heading, move):
         np.clip(np.rint(col).astype(int), 0, grid.width - 1),
     ]
     err = world[:, 2] - truth
-    assert abs(np.median(err)) < 0.05
-    # sigma_Z = Z^2 / (f B) sigma_d = 1.4 m per pixel of disparity here: 0.3 px or better.
+    # sigma_Z = Z^2 / (f B) sigma_d = 1.4 m per pixel of disparity here: a bias of a
+    # twentieth of a pixel (SGBM's sub-pixel fit leans towards whole pixels; OpenCV's
+    # rectification gave 0.04-0.05 m level and 0.10 m on the descent), the noise 0.3 px
+    # or better.
+    assert abs(np.median(err)) < bias_m
     assert 1.4826 * np.median(np.abs(err - np.median(err))) < 0.4
 
 

@@ -381,15 +381,37 @@ def points_inside(points: np.ndarray, region: BaseGeometry, resolution_m: float)
 
 @dataclass
 class SurveyFootprints:
-    """What the cameras of a survey see: `views`, each keyframe's footprint on the
-    surface its image border meets (`VIEW_SURFACE_QUANTILE`; None where it has none),
-    and `reach`, the union of the footprints on the ground each sees (its fitted plane,
-    and its low ground), grown by `margin_m`: where a point the cameras measured can
-    lie."""
+    """What the cameras of a survey see: `viewpoints`, what is seen from each place a
+    camera stood (the union of the footprints, on the surface their image borders meet
+    (`VIEW_SURFACE_QUANTILE`), of the keyframes taken there, see `viewpoint_groups`), and
+    `reach`, the union of the footprints on the ground each sees (its fitted plane, and
+    its low ground), grown by `margin_m`: where a point the cameras measured can lie."""
 
-    views: list[Polygon | None]
+    viewpoints: list[BaseGeometry]
     reach: BaseGeometry
     margin_m: float
+
+
+def viewpoint_groups(
+    centres: np.ndarray, depths: np.ndarray, min_baseline_ratio: float
+) -> np.ndarray:
+    """Per keyframe (in order), the viewpoint it belongs to: a keyframe closer than
+    `min_baseline_ratio` times its depth to the first keyframe of the current viewpoint
+    joins it, any other starts the next. Ground seen from one viewpoint only has no
+    stereo, however many keyframes see it: a video holds many keyframes where the
+    aircraft hovers, turns on the spot at a line's end or climbs straight up, and their
+    footprints overlap without a baseline between them. Keyframes without a depth start
+    their own viewpoint."""
+    groups = np.zeros(len(centres), dtype=np.int64)
+    anchor = 0
+    for i in range(1, len(centres)):
+        reach = min_baseline_ratio * depths[anchor]
+        if np.isfinite(reach) and np.linalg.norm(centres[i] - centres[anchor]) < reach:
+            groups[i] = groups[anchor]
+        else:
+            anchor = i
+            groups[i] = groups[i - 1] + 1
+    return groups
 
 
 def survey_footprints(
@@ -398,11 +420,14 @@ def survey_footprints(
     margin_fraction: float = 0.05,
     margin_cells: int = 5,
     low_ground_quantile: float = 0.05,
+    min_baseline_ratio: float = 0.04,
 ) -> SurveyFootprints | None:
     """The footprints of `sparse`'s keyframes (see `SurveyFootprints`); the margin is the
     larger of `margin_fraction` of the median footprint's size (square root of its area:
-    pose and ground-height errors scale with it) and `margin_cells` DSM cells. None when
-    no keyframe has a footprint."""
+    pose and ground-height errors scale with it) and `margin_cells` DSM cells; keyframes
+    closer than `min_baseline_ratio` times their height above the ground they see share
+    a viewpoint (the shortest baseline dense matching takes). None when no keyframe has
+    a footprint."""
     # Where points may lie is bounded by the ground each camera sees, not by the surface
     # its border meets first: the footprints on the fitted planes, and on the low ground.
     fitted = camera_footprints(sparse)
@@ -413,16 +438,23 @@ def survey_footprints(
     far = camera_footprints(sparse, ground_quantile=low_ground_quantile)
     reach = footprint_union([*far, *fitted], margin)
     views = camera_footprints(sparse, surface_quantile=VIEW_SURFACE_QUANTILE)
-    return SurveyFootprints(views=views, reach=reach, margin_m=margin)
+    centres = sparse.kf_centres()
+    depths = centres[:, 2] - ground_heights(sparse)
+    groups = viewpoint_groups(centres, np.where(depths > 0, depths, np.nan), min_baseline_ratio)
+    viewpoints = [
+        footprint_union([views[i] for i in np.flatnonzero(groups == g)])
+        for g in range(int(groups.max()) + 1 if len(groups) else 0)
+    ]
+    return SurveyFootprints(viewpoints=viewpoints, reach=reach, margin_m=margin)
 
 
 def overlap_figures(
     views: Sequence[BaseGeometry | None], measured: np.ndarray, transform: Affine
 ) -> tuple[float, float | None]:
-    """(area in m² seen by two or more footprints, the fraction of it that `measured`
-    (a north-up raster, `transform`) holds; None when no cell is seen twice). Counted on
-    a grid of the raster's cells grown to hold every footprint: overlap outside the
-    raster (where no point was kept) counts as not measured."""
+    """(area in m² seen by two or more of `views` (a survey's viewpoints), the fraction
+    of it that `measured` (a north-up raster, `transform`) holds; None when no cell is
+    seen twice). Counted on a grid of the raster's cells grown to hold every footprint:
+    overlap outside the raster (where no point was kept) counts as not measured."""
     union = footprint_union(views)
     if union.is_empty:
         return 0.0, None

@@ -728,7 +728,9 @@ def dsm(
     # segment, a wrong match) are dropped and cannot stretch the raster, whose extent is
     # then that of the points kept (the footprints' own reach is wider: a raster of it
     # would be mostly empty at its edges).
-    seen = survey_footprints(sparse, resolution)
+    seen = survey_footprints(
+        sparse, resolution, min_baseline_ratio=options.slam.densify.min_baseline_ratio
+    )
     if seen is not None:
         keep = points_inside(cloud[:n], seen.reach, resolution)
         out["points_outside_footprint"] = int((~keep).sum())
@@ -750,7 +752,7 @@ def dsm(
         with rasterio.open(raster.filled_mask_path) as src:
             measured = src.read(1) == FILLED_MEASURED
             transform = src.transform
-        area, coverage = overlap_figures(seen.views, measured, transform)
+        area, coverage = overlap_figures(seen.viewpoints, measured, transform)
         out["overlap_area_m2"] = round(area, 2)
         # Judged against its bound by the survey's quality verdict (quality.py), which
         # warns in the report.

@@ -67,11 +67,6 @@ class SfmOptions:
     min_prior_sigma_m: float = 0.02
     dense: bool = True
     dense_width: int = 1280
-    # Rectification keeping half the pixels alpha 0 crops (see DensifyOptions): measured
-    # on simulated photo sets, the overlap's measured share went 0.85 -> 0.92 (mounds, 69
-    # photos) and 0.72 -> 0.79 (hillslope, 24 photos, 4 in a turn) for NMAD against the
-    # truth 6 -> 7 mm and 0.57 -> 0.60 m (the cameras moved onto the truth).
-    dense_rectify_alpha: float = 0.5
     min_model_images: int = 4  # smaller COLMAP models are dropped
     # A guessed focal length is kept fixed unless this is set. At one height a nadir
     # survey cannot tell a focal length from a height (a longer lens over deeper ground
@@ -427,7 +422,7 @@ def _densify(
     options: SfmOptions,
 ) -> None:
     """SGBM between each image and its stereo partners (`_stereo_partners`)."""
-    dense_opts = DensifyOptions(rectify_alpha=options.dense_rectify_alpha)
+    dense_opts = DensifyOptions()
     scale = min(1.0, options.dense_width / intrinsics.width)
     size = (round(intrinsics.width * scale), round(intrinsics.height * scale))
     k = intrinsics.scaled(*size).K
@@ -444,28 +439,28 @@ def _densify(
 
     n = len(centres)
     depths = np.full(n, np.nan)
-    depth_range: dict[int, tuple[float, float]] = {}
+    seen_points: dict[int, np.ndarray] = {}  # in each view's camera frame
     for a in range(n):
         sel = sparse.obs_kf == a
         xyz = sparse.point_xyz[np.searchsorted(sparse.point_id, sparse.obs_point[sel])]
-        z = (xyz - centres[a]) @ sparse.kf_r[a][2]
-        z = z[z > 0]
-        if z.size < 20:
+        seen = (xyz - centres[a]) @ sparse.kf_r[a].T
+        seen = seen[seen[:, 2] > 0]
+        if len(seen) < 20:
             continue
-        depths[a] = float(np.median(z))
-        lo, hi = np.percentile(z, [2, 98])
-        depth_range[a] = (float(lo), float(hi))
+        depths[a] = float(np.median(seen[:, 2]))
+        seen_points[a] = seen
     chunks = []
     for a, chosen in enumerate(_stereo_partners(sparse, depths, dense_opts)):
-        for b in chosen:
+        for pair, b in enumerate(chosen):
             pts = densify_pair(
                 gray(a),
                 gray(b),
                 k,
                 (sparse.kf_r[a], sparse.kf_tr[a]),
                 (sparse.kf_r[b], sparse.kf_tr[b]),
-                depth_range[a],
+                seen_points[a],
                 dense_opts,
+                sample_phase=a + pair,
             )
             if len(pts):
                 baseline = float(np.linalg.norm(centres[b] - centres[a]))

@@ -636,12 +636,11 @@ class VisualSlam:
         sel = np.isin(kf.ids, self.point_ids)
         if sel.sum() < 20:
             return
-        xyz = self._points_of(kf.ids[sel])
-        _, z = project(kf.r, kf.tr, self.k, xyz)
-        z = z[z > 0]
-        if z.size < 20:
+        seen = self._points_of(kf.ids[sel]) @ kf.r.T + kf.tr  # in the keyframe's frame
+        seen = seen[seen[:, 2] > 0]
+        if len(seen) < 20:
             return
-        depth = float(np.median(z))
+        depth = float(np.median(seen[:, 2]))
         centre = camera_center(kf.r, kf.tr)
         ratios = {
             other.index: float(np.linalg.norm(camera_center(other.r, other.tr) - centre)) / depth
@@ -661,8 +660,7 @@ class VisualSlam:
             )
             if wide is not None:
                 partners.append(wide)
-        lo, hi = np.percentile(z, [2, 98])
-        for index in partners:
+        for pair, index in enumerate(partners):
             other = self.keyframes[index]
             future = self._densifier.submit(
                 self._densify_pair,
@@ -671,8 +669,10 @@ class VisualSlam:
                 self.k,
                 (kf.r.copy(), kf.tr.copy()),
                 (other.r.copy(), other.tr.copy()),
-                (lo, hi),
+                seen,
                 o,
+                # Each keyframe's pairs sample their own pixels (see densify_pair).
+                kf.index + pair,
             )
             baseline = ratios[index] * depth
             self.dense.append((kf.index, other.index, future, baseline))
