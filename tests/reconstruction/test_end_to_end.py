@@ -190,6 +190,17 @@ def test_time_offset_estimated_from_the_video(slam_run, survey):
     assert abs(geo["time_offset"]["offset_s"] - true_offset) < 0.05
 
 
+def test_a_flight_whose_tracking_held_keeps_its_dense_pairs(slam_run):
+    """The georeference moves the cameras of a good flight little: hardly a pair is
+    matched again, and the step says what it did."""
+    out, _ = slam_run
+    done = json.loads((out / "georeference.json").read_text())["redensified"]
+    pairs = json.loads((out / "reconstruct.json").read_text())["stats"]["counts"]["dense_pairs"]
+    assert pairs > 20
+    assert done["pairs_matched_again"] <= 0.05 * pairs
+    assert done["points_dropped"] >= 0 and done["seconds"] >= 0
+
+
 def test_stages_are_idempotent(slam_run):
     out, _ = slam_run
     with rasterio.open(out / "dsm.tif") as src:

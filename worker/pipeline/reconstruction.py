@@ -121,6 +121,12 @@ from worker.pipeline.reconstruction_results import (
 )
 from worker.pipeline.sfm import SfmOptions, run_sfm
 from worker.pipeline.slam.densify import DensifyOptions, wide_pair_points
+from worker.pipeline.slam.redensify import (
+    KeyframePoses,
+    RedensifyOptions,
+    plan_redensify,
+    redensify,
+)
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.system import SlamOptions, run_slam
 from worker.pipeline.slam.ties import TieOptions, keyframe_images, tie_flight_lines
@@ -181,6 +187,8 @@ class ReconstructionOptions:
     ties: TieOptions = field(default_factory=TieOptions)  # slam: between flight lines
     sfm: SfmOptions = field(default_factory=SfmOptions)
     georef: MapGeorefOptions = field(default_factory=MapGeorefOptions)
+    # slam: dense pairs matched again where the georeference moved their cameras
+    redensify: RedensifyOptions = field(default_factory=RedensifyOptions)
     dsm: DsmOptions = field(default_factory=DsmOptions)
     orthophoto: OrthophotoOptions = field(default_factory=OrthophotoOptions)
     sparse_sor: bool = True  # open3d statistical outlier removal on the sparse cloud
@@ -641,11 +649,15 @@ def georeference(
             if np.isfinite(t)
         }
     hold = offset.method == OffsetMethod.user or offset.prior_source in kept
+    tracked = KeyframePoses.of(sparse)
     fit = georeference_map(sparse, log, offset.offset_s, options.georef, photos, hold_offset=hold)
     if fit.adjusted_offset_s is not None:
         offset.offset_s = fit.adjusted_offset_s
         offset.method = OffsetMethod.bundle_adjustment
         out["time_offset"] = offset.to_dict()
+    progress(0.8)
+    if ing.method == "slam" and options.redensify.enabled:
+        out["redensified"] = _redensify(work_dir, tracked, sparse, options)
     sparse.save(work_dir / GEOREF_MAP)
     traj = sparse.trajectory()
     traj.crs = fit.crs
@@ -657,6 +669,29 @@ def georeference(
     _write_result(work_dir, result)
     progress(1.0)
     return result
+
+
+def _redensify(
+    work_dir: Path, tracked: KeyframePoses, sparse: SparseMap, options: ReconstructionOptions
+) -> dict[str, Any]:
+    """Match again the dense pairs the georeference moved (see slam/redensify.py), with
+    their keyframes' images read back from the frames the frames stage stored."""
+    start = time.perf_counter()
+    plan = plan_redensify(tracked, sparse, options.redensify, options.slam.densify)
+    needed = plan.keyframes()
+    images: dict[int, np.ndarray] = {}
+    if needed:
+        times = np.sort(sparse.kf_t[sorted(needed)])
+
+        def wanted(t: float) -> bool:
+            # As keyframe_images matches them: within 0.1 ms.
+            j = int(np.clip(np.searchsorted(times, t), 1, times.size - 1)) if times.size > 1 else 0
+            return bool(np.min(np.abs(times[max(j - 1, 0) : j + 1] - t)) < 1e-4)
+
+        frames = iter_prepared_frames(work_dir / FRAMES_DIR, wanted=wanted)
+        images = {i: image for i, image in keyframe_images(sparse, frames).items() if i in needed}
+    report = redensify(sparse, images, plan, options.slam.densify)
+    return {**report.to_dict(), "seconds": round(time.perf_counter() - start, 3)}
 
 
 def _snap_125(value: float) -> float:

@@ -124,6 +124,9 @@ class GeoreferenceResult(ReconstructionStageResult):
     warnings: list[str]
     # image sets: per photo, residual east/north/up (m) and used or outlier
     photos: list[dict[str, Any]] | None = field(default=None, metadata=_OPTIONAL)
+    # slam: the dense pairs matched again on the georeferenced poses
+    # (slam/redensify.RedensifyReport, and its seconds)
+    redensified: dict[str, Any] | None = field(default=None, metadata=_OPTIONAL)
 
 
 @dataclass(kw_only=True)

@@ -57,6 +57,36 @@ class DensifyOptions:
     max_canvas_pixels: float = 1.0
 
 
+def _closest_ratio(ratios: dict[int, float], target: float, low: float, high: float) -> int | None:
+    """The keyframe whose baseline ratio is closest to `target` (in log) within
+    [low, high], or None."""
+    inside = {i: r for i, r in ratios.items() if low <= r <= high}
+    if not inside:
+        return None
+    return min(inside, key=lambda i: abs(np.log(inside[i] / target)))
+
+
+def stereo_partners(ratios: dict[int, float], options: DensifyOptions) -> list[int]:
+    """A keyframe's partners among candidates (index: baseline over the keyframe's
+    median depth): the one nearest the target ratio, then, where `wide_baseline_ratio`
+    is set, a clearly wider one; empty when none is within the ratios taken."""
+    o = options
+    first = _closest_ratio(
+        ratios, o.target_baseline_ratio, o.min_baseline_ratio, o.max_baseline_ratio
+    )
+    if first is None:
+        return []
+    partners = [first]
+    if o.wide_baseline_ratio is not None:
+        # Only a pair clearly wider than the first is worth its matching.
+        wide = _closest_ratio(
+            ratios, o.wide_baseline_ratio, 1.5 * ratios[first], o.max_wide_baseline_ratio
+        )
+        if wide is not None:
+            partners.append(wide)
+    return partners
+
+
 @dataclass
 class _Rectification:
     """Both views turned to the common orientation `r_a` (a's camera frame to the

@@ -43,7 +43,7 @@ from worker.pipeline.frames import KeyframePolicy
 from worker.pipeline.ingest.camera import Intrinsics
 from worker.pipeline.progress import ProgressFn, no_progress
 from worker.pipeline.slam.bundle import BAProblem, bundle_adjust
-from worker.pipeline.slam.densify import DensifyOptions, densify_pair
+from worker.pipeline.slam.densify import DensifyOptions, densify_pair, stereo_partners
 from worker.pipeline.slam.geometry import camera_center, project, rays_world, triangulate_midpoint
 from worker.pipeline.slam.result import SparseMap
 from worker.pipeline.slam.rolling_shutter import (
@@ -116,15 +116,6 @@ class _Reference:
     ids: np.ndarray
     uv: np.ndarray
     frames: int = 0
-
-
-def _closest_ratio(ratios: dict[int, float], target: float, low: float, high: float) -> int | None:
-    """The keyframe whose baseline ratio is closest to `target` (in log) within
-    [low, high], or None."""
-    inside = {i: r for i, r in ratios.items() if low <= r <= high}
-    if not inside:
-        return None
-    return min(inside, key=lambda i: abs(np.log(inside[i] / target)))
 
 
 class VisualSlam:
@@ -647,19 +638,7 @@ class VisualSlam:
             for other in seg
             if other is not kf and other.image is not None
         }
-        first = _closest_ratio(
-            ratios, o.target_baseline_ratio, o.min_baseline_ratio, o.max_baseline_ratio
-        )
-        if first is None:
-            return
-        partners = [first]
-        if o.wide_baseline_ratio is not None:
-            # Only a pair clearly wider than the first is worth its matching.
-            wide = _closest_ratio(
-                ratios, o.wide_baseline_ratio, 1.5 * ratios[first], o.max_wide_baseline_ratio
-            )
-            if wide is not None:
-                partners.append(wide)
+        partners = stereo_partners(ratios, o)
         for pair, index in enumerate(partners):
             other = self.keyframes[index]
             future = self._densifier.submit(
