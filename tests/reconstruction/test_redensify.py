@@ -80,14 +80,18 @@ def _errors(grid, dsm, world: np.ndarray) -> np.ndarray:
 
 def test_a_pair_whose_cameras_the_georeference_turned_is_matched_again(terrain):  # noqa: F811
     """SLAM had the second camera turned by 3° (its epipolar lines 22 px off): the pair's
-    points are dropped and matched again on the corrected poses, and the keyframes
-    without a pair get partners; all of them on the surface."""
+    points are dropped and matched again on the corrected poses, and with an RTK log the
+    keyframes without a pair get partners; all of them on the surface."""
     grid, dsm, sparse, images = _survey(terrain)
     tracked = KeyframePoses.of(sparse)
     tracked.r[1] = _turned(tracked.r[1], 3.0)
-    plan = plan_redensify(tracked, sparse)
+    # A stand-alone log: the pair only (the others' baselines are the log's metres).
+    plan = plan_redensify(tracked, sparse, log_sigma_m=2.0)
+    assert plan.redo == [(0, 1)] and plan.new == []
+    # An RTK log: each of the others too, with the partners nearest a tenth and a fifth
+    # of the depth.
+    plan = plan_redensify(tracked, sparse, log_sigma_m=0.02)
     assert plan.redo == [(0, 1)]
-    # Each of the others with the partners nearest a tenth and a fifth of the depth.
     assert plan.new == [(1, 0), (1, 3), (2, 1), (2, 0), (3, 2), (3, 1)]
     report = redensify(sparse, images, plan)
     assert report.pairs_matched_again == 1 and report.points_dropped == 1000
@@ -115,6 +119,6 @@ def test_pairs_the_georeference_barely_moved_are_kept(terrain, baseline_turn, re
     tracked.r[1] = _turned(tracked.r[1], relative_turn)
     centres = tracked.centres() * 3.0  # the map's own scale, three times the world's
     tracked = KeyframePoses(tracked.t, tracked.r, -np.einsum("nij,nj->ni", tracked.r, centres))
-    plan = plan_redensify(tracked, sparse, RedensifyOptions())
+    plan = plan_redensify(tracked, sparse, RedensifyOptions(), log_sigma_m=0.02)
     # Nor are keyframes without a pair given one: SLAM tried them on the same geometry.
     assert plan.redo == [] and plan.new == []

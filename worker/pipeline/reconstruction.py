@@ -73,7 +73,7 @@ from worker.pipeline.frames import (
     read_frame_scan,
     tracking_frames,
 )
-from worker.pipeline.georef import offset_residual_fn, survey_epsg
+from worker.pipeline.georef import offset_residual_fn, position_accuracy, survey_epsg
 from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
 from worker.pipeline.height_agreement import pair_agreement
 from worker.pipeline.ingest.arriving import Arrival
@@ -657,7 +657,10 @@ def georeference(
         out["time_offset"] = offset.to_dict()
     progress(0.8)
     if ing.method == "slam" and options.redensify.enabled:
-        out["redensified"] = _redensify(work_dir, tracked, sparse, options)
+        # The positions' accuracy as the log states it or the user declared it.
+        sigma = position_accuracy(log, options.georef.georef)
+        horizontal = None if sigma is None else float(max(sigma[:2]))
+        out["redensified"] = _redensify(work_dir, tracked, sparse, options, horizontal)
     sparse.save(work_dir / GEOREF_MAP)
     traj = sparse.trajectory()
     traj.crs = fit.crs
@@ -672,12 +675,16 @@ def georeference(
 
 
 def _redensify(
-    work_dir: Path, tracked: KeyframePoses, sparse: SparseMap, options: ReconstructionOptions
+    work_dir: Path,
+    tracked: KeyframePoses,
+    sparse: SparseMap,
+    options: ReconstructionOptions,
+    log_sigma_m: float | None,
 ) -> dict[str, Any]:
     """Match again the dense pairs the georeference moved (see slam/redensify.py), with
     their keyframes' images read back from the frames the frames stage stored."""
     start = time.perf_counter()
-    plan = plan_redensify(tracked, sparse, options.redensify, options.slam.densify)
+    plan = plan_redensify(tracked, sparse, options.redensify, options.slam.densify, log_sigma_m)
     needed = plan.keyframes()
     images: dict[int, np.ndarray] = {}
     if needed:

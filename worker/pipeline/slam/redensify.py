@@ -33,7 +33,15 @@ class RedensifyOptions:
     # off at 427 px focal length, beyond what SGBM searches across.
     max_baseline_turn_deg: float = 4.0
     max_relative_turn_deg: float = 1.0
-    # Candidates for a keyframe without a pair: this many keyframes on either side.
+    # Partners on the corrected poses for keyframes SLAM left without a pair (among this
+    # many keyframes on either side), only where the log states its positions to this or
+    # better, or the user declares it does (RTK): where tracking failed, the baselines
+    # between such keyframes come from the log, and a stand-alone log's metres do not fix
+    # a 2-m baseline's direction. On 24 mounds flights (seeds 101-124) it took one RTK
+    # flight past its overlap bound and harmed none; on stand-alone flights it gave two of
+    # 14 DSMs steps of 0.3-0.75 m where such a stretch met the rest (seeds 103 and 303:
+    # after shift + tilt 1.21 -> 1.86 px).
+    unpaired_max_sigma_m: float = 0.1
     neighbours: int = 12
 
 
@@ -108,10 +116,12 @@ def plan_redensify(
     adjusted: SparseMap,
     options: RedensifyOptions | None = None,
     densify: DensifyOptions | None = None,
+    log_sigma_m: float | None = None,
 ) -> RedensifyPlan:
     """What to match again in `adjusted` (the georeferenced map), against `tracked` (its
     keyframes as SLAM left them; matched by time, since the georeference may have
-    dropped segments and renumbered the rest). A keyframe without a pair gets the
+    dropped segments and renumbered the rest). With the log's stated horizontal sigma
+    `log_sigma_m` within `unpaired_max_sigma_m`, a keyframe without a pair gets the
     partners `densify` chooses on the corrected poses where its geometry with them
     moved as a pair to redo would: on unchanged poses, SLAM's attempt stands."""
     options = options or RedensifyOptions()
@@ -134,6 +144,9 @@ def plan_redensify(
         )
 
     plan = RedensifyPlan(redo=[(a, b) for a, b in _pairs(adjusted) if moved(a, b)])
+    bound = options.unpaired_max_sigma_m
+    if log_sigma_m is None or bound is None or log_sigma_m > bound:
+        return plan
     paired = set(adjusted.dense_kf.tolist())
     for a in range(adjusted.kf_t.size):
         seen = _seen_points(adjusted, a)
