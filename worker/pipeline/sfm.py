@@ -441,10 +441,7 @@ def _densify(
     depths = np.full(n, np.nan)
     seen_points: dict[int, np.ndarray] = {}  # in each view's camera frame
     for a in range(n):
-        sel = sparse.obs_kf == a
-        xyz = sparse.point_xyz[np.searchsorted(sparse.point_id, sparse.obs_point[sel])]
-        seen = (xyz - centres[a]) @ sparse.kf_r[a].T
-        seen = seen[seen[:, 2] > 0]
+        seen = sparse.observed_points(a)
         if len(seen) < 20:
             continue
         depths[a] = float(np.median(seen[:, 2]))

@@ -149,7 +149,7 @@ def plan_redensify(
         return plan
     paired = set(adjusted.dense_kf.tolist())
     for a in range(adjusted.kf_t.size):
-        seen = _seen_points(adjusted, a)
+        seen = adjusted.observed_points(a)
         if a in paired or len(seen) < 20:
             continue
         depth = float(np.median(seen[:, 2]))
@@ -167,17 +167,6 @@ def _candidates(sparse: SparseMap, a: int, neighbours: int) -> list[int]:
     """Keyframes of `a`'s segment within `neighbours` of it, itself left out."""
     lo, hi = max(0, a - neighbours), min(sparse.kf_t.size, a + neighbours + 1)
     return [i for i in range(lo, hi) if i != a and sparse.kf_segment[i] == sparse.kf_segment[a]]
-
-
-def _seen_points(sparse: SparseMap, a: int) -> np.ndarray:
-    """The map points keyframe `a` observes, in its camera frame (in front of it)."""
-    if sparse.point_id.size == 0:
-        return np.empty((0, 3))
-    ids = sparse.obs_point[sparse.obs_kf == a]
-    index = np.clip(np.searchsorted(sparse.point_id, ids), 0, sparse.point_id.size - 1)
-    xyz = sparse.point_xyz[index[sparse.point_id[index] == ids]]
-    seen = xyz @ sparse.kf_r[a].T + sparse.kf_tr[a]
-    return seen[seen[:, 2] > 0]
 
 
 def redensify(
@@ -210,7 +199,14 @@ def redensify(
         pose_a = (sparse.kf_r[a], sparse.kf_tr[a])
         pose_b = (sparse.kf_r[b], sparse.kf_tr[b])
         pts = densify_pair(
-            images[a], images[b], sparse.k, pose_a, pose_b, _seen_points(sparse, a), densify, a + n
+            images[a],
+            images[b],
+            sparse.k,
+            pose_a,
+            pose_b,
+            sparse.observed_points(a),
+            densify,
+            a + n,
         )
         if len(pts) == 0:
             continue

@@ -130,6 +130,17 @@ class SparseMap:
     def kf_centres(self) -> np.ndarray:
         return -np.einsum("nji,nj->ni", self.kf_r, self.kf_tr)
 
+    def observed_points(self, kf: int) -> np.ndarray:
+        """The map points keyframe `kf` observes, in its camera frame, those in front of
+        it (N, 3)."""
+        if self.point_id.size == 0:
+            return np.empty((0, 3))
+        ids = self.obs_point[self.obs_kf == kf]
+        index = np.clip(np.searchsorted(self.point_id, ids), 0, self.point_id.size - 1)
+        xyz = self.point_xyz[index[self.point_id[index] == ids]]
+        seen = xyz @ self.kf_r[kf].T + self.kf_tr[kf]
+        return seen[seen[:, 2] > 0]
+
     def trajectory(self, segment: int | None = None) -> Trajectory:
         sel = np.ones(self.fr_t.size, bool) if segment is None else self.fr_segment == segment
         r_wc = np.transpose(self.fr_r[sel], (0, 2, 1))
