@@ -688,12 +688,11 @@ def _redensify(
     needed = plan.keyframes()
     images: dict[int, np.ndarray] = {}
     if needed:
-        times = np.sort(sparse.kf_t[sorted(needed)])
+        times = sparse.kf_t[sorted(needed)]
 
         def wanted(t: float) -> bool:
             # As keyframe_images matches them: within 0.1 ms.
-            j = int(np.clip(np.searchsorted(times, t), 1, times.size - 1)) if times.size > 1 else 0
-            return bool(np.min(np.abs(times[max(j - 1, 0) : j + 1] - t)) < 1e-4)
+            return bool(np.abs(times - t).min() < 1e-4)
 
         frames = iter_prepared_frames(work_dir / FRAMES_DIR, wanted=wanted)
         images = {i: image for i, image in keyframe_images(sparse, frames).items() if i in needed}
