@@ -1,18 +1,22 @@
 """A short video's time offset held to the span its flight log marks as recording
-(worker/pipeline/ingest/time_offset.py), and an offset that cannot be tied down reported
-as ambiguous, in the report and the survey's quality verdict, rather than guessed."""
+(worker/pipeline/ingest/time_offset.py), an offset that cannot be tied down reported
+as ambiguous, in the report and the survey's quality verdict, rather than guessed, and
+one the camera path ties down after all settled by it."""
 
 import numpy as np
 import pytest
 
+from worker.pipeline.georef import offset_residual_fn
 from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.ingest.time_offset import (
     TimeOffset,
     estimate_time_offset,
     prior_offset,
     refine_time_offset,
+    weigh_rivals,
 )
 from worker.pipeline.quality import survey_quality
+from worker.pipeline.trajectory import Trajectory
 
 RATE_HZ = 10.0
 VIDEO_S = 8.0
@@ -25,10 +29,28 @@ def _speeds(seed: int, duration: float) -> tuple[np.ndarray, np.ndarray]:
     return t, np.interp(t, np.arange(knots.size) * 2.0, knots)
 
 
+LINE_M, STEP_M = 40.0, 8.0  # the lawnmower's lines and the step between them
+
+
+def _ground_path(t: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(east, north) metres of a lawnmower flown at `speed`: lines of LINE_M north and
+    south, STEP_M apart."""
+    travelled = np.cumsum(speed) / RATE_HZ
+    leg, along = np.divmod(travelled, LINE_M + STEP_M)
+    on_line = along < LINE_M
+    north = np.where(on_line, along, LINE_M)
+    north = np.where(leg % 2 == 1, LINE_M - north, north)
+    east = leg * STEP_M + np.where(on_line, 0.0, along - LINE_M)
+    return np.column_stack([east, north])
+
+
 def _log(seed: int, spans: list[tuple[float, float]], duration: float = 60.0):
-    """A log at 10 Hz, 60 m above take-off, flagged as recording during `spans`."""
+    """A log at 10 Hz, 60 m above take-off, of a lawnmower, flagged as recording during
+    `spans`."""
     t, speed = _speeds(seed, duration)
-    lat = 47 + np.cumsum(speed) / RATE_HZ / 111_195.0
+    path = _ground_path(t, speed)
+    lat = 47 + path[:, 1] / 111_195.0
+    lon = 8 + path[:, 0] / (111_195.0 * np.cos(np.radians(47)))
     recording = np.zeros(t.size, bool)
     for a, b in spans:
         recording |= (t >= a) & (t < b)
@@ -37,7 +59,7 @@ def _log(seed: int, spans: list[tuple[float, float]], duration: float = 60.0):
             "line": i + 2,
             "t": float(t[i]),
             "lat": float(lat[i]),
-            "lon": 8.0,
+            "lon": float(lon[i]),
             "alt": 500.0,
             "rel_alt": 60.0,
             "recording": int(recording[i]),
@@ -95,6 +117,62 @@ def test_motion_that_fits_elsewhere_in_the_log_is_reported_not_followed(seed):
     assert any("uncertain" in w for w in found.warnings)
     # A few seconds of motion match unrelated stretches of a log: not a contradiction.
     assert _contradicted(seed, VIDEO_S).ambiguous_reason is None
+
+
+def _camera_path(log_t, speed, true_offset: float, seconds: float, seed: int):
+    """The reconstructed camera path of a video that starts `true_offset` s into the log:
+    the log's path at that time in the reconstruction's own frame (scale, rotation,
+    origin of its own) with 5 cm of noise."""
+    video_t = np.arange(0.0, seconds, 0.2)
+    path = _ground_path(log_t, speed)
+    ground = np.column_stack([np.interp(video_t + true_offset, log_t, c) for c in path.T])
+    local = np.column_stack([ground, np.full(video_t.size, 60.0)])
+    turn = np.radians(35.0)
+    rotation = np.array(
+        [[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]]
+    )
+    local = 0.2 * local @ rotation.T + [3.0, -1.0, 7.0]
+    local += np.random.default_rng(seed).normal(0, 0.05 * 0.2, local.shape)
+    n = video_t.size
+    return Trajectory(video_t, local, np.repeat(np.eye(3)[None], n, 0), np.ones(n, bool))
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_a_camera_path_that_fits_only_the_recorded_span_settles_the_offset(seed):
+    """Image motion that matches another part of the log (low sun, few features) is
+    outweighed by the camera path, which fits the log only where the video was
+    recorded: the offset is tied down, and the report says what settled it."""
+    log, t, speed = _log(seed, [(20.0, 20.0 + LONG_S)], duration=120.0)
+    found = _contradicted(seed, LONG_S)
+    assert found.rivals_s == [pytest.approx(37.0, abs=0.1)]
+    residual_at = offset_residual_fn(_camera_path(t, speed, 20.3, LONG_S, seed), log)
+    settled = weigh_rivals(
+        refine_time_offset(found, np.arange(0, LONG_S, 0.2), residual_at), residual_at
+    )
+    assert settled.ambiguous_reason is None
+    assert settled.offset_s == pytest.approx(20.3, abs=0.05)
+    assert not any(
+        w.startswith("the time offset between video and log is uncertain") for w in settled.warnings
+    )
+    assert any("the camera path settled the time offset" in w for w in settled.warnings)
+    assert _verdict(settled)["passed"]
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_a_camera_path_that_fits_elsewhere_keeps_the_offset_ambiguous(seed):
+    """Motion and camera path both say the video is from 37 s on, outside the span the
+    log marks: the log is another recording's or its flag is wrong; the verdict fails
+    and the reason gives both fits."""
+    log, t, speed = _log(seed, [(20.0, 20.0 + LONG_S)], duration=120.0)
+    found = _contradicted(seed, LONG_S)
+    residual_at = offset_residual_fn(_camera_path(t, speed, 37.0, LONG_S, seed), log)
+    weighed = weigh_rivals(
+        refine_time_offset(found, np.arange(0, LONG_S, 0.2), residual_at), residual_at
+    )
+    assert weighed.allows(weighed.offset_s)
+    assert "outside the recording the log marks" in weighed.ambiguous_reason
+    assert "the camera path fits the log with" in weighed.ambiguous_reason
+    assert not _verdict(weighed)["passed"]
 
 
 def test_two_recordings_as_long_as_the_video_are_ambiguous():

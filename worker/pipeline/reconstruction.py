@@ -90,6 +90,7 @@ from worker.pipeline.ingest.time_offset import (
     estimate_time_offset,
     prior_offset,
     refine_time_offset,
+    weigh_rivals,
 )
 from worker.pipeline.ingest.video import probe_video
 from worker.pipeline.orthophoto import (
@@ -636,7 +637,8 @@ def georeference(
         longest = max(sparse.segments, key=lambda s: int((sparse.fr_segment == s).sum()))
         traj = sparse.trajectory(longest)
         traj = traj.subset(np.arange(len(traj)) % max(1, len(traj) // 400) == 0)
-        offset = refine_time_offset(offset, traj.t, offset_residual_fn(traj, log))
+        residual_at = offset_residual_fn(traj, log)
+        offset = weigh_rivals(refine_time_offset(offset, traj.t, residual_at), residual_at)
     out["time_offset"] = offset.to_dict()
     progress(0.2)
     photos = None

@@ -15,6 +15,10 @@ Convention: `log_time = video_time + offset_s`.
 3. A refinement from the reconstructed trajectory (`refine_time_offset`): the offset
    that minimises the residual of a similarity fit between camera positions and log
    positions, searched finely around the current estimate.
+4. Rivals weighed on the trajectory (`weigh_rivals`): offsets other evidence pointed at
+   and that were not taken (the image motion's peak outside the recording span, other
+   recording spans as long as the video) are fitted too; an offset that fits the
+   trajectory several times better than every rival is tied down after all.
 
 Where the log marks its recording span, the offset is held to it: every estimate and the
 refinement search only offsets that keep the video inside that span (give or take
@@ -23,7 +27,10 @@ parallel lines matches several parts of a log about as well; the span says which
 video is. An offset that cannot be tied down (nothing ties the clocks and the motion does
 not tell, the motion matches best outside the marked span, several recording spans fit
 the video) is kept with its reason in `ambiguous_reason`: the report warns and the
-survey's quality verdict fails on it (quality.py), rather than a silent guess.
+survey's quality verdict fails on it (quality.py), rather than a silent guess. Where
+the ambiguity names rivals (`TimeOffset.rivals_s`), step 4 may settle it: image motion
+over a low sun or a field of few features can match another part of the log better than
+the recorded one, while the camera path fits only one of them.
 
 `check_overlap` raises a clear error when the log does not cover the video.
 """
@@ -83,6 +90,13 @@ class TimeOffsetOptions:
     # unrelated stretches of a log (r = 0.83 against 0.53 at the true offset on an 8-s
     # flight), so only a video this long can contradict the recording span.
     min_contradicting_video_s: float = 20.0
+    # `weigh_rivals`: each rival's best residual within +/- rival_search_s, and how many
+    # times worse than the kept offset's every rival must fit to settle the offset. On
+    # flights whose recorded span was right, the motion's rival 6 s away fitted 5-7 times
+    # worse; a path that cannot tell the offsets apart fits them about equally.
+    rival_search_s: float = 1.0
+    rival_step_s: float = 0.1
+    rival_ratio: float = 3.0
 
 
 @dataclass
@@ -99,6 +113,8 @@ class TimeOffset:
     allowed_s: list[float] | None = None
     # Why the offset could not be tied down (None: it could); see the module doc.
     ambiguous_reason: str | None = None
+    # Offsets other evidence pointed at that were not taken (`weigh_rivals`).
+    rivals_s: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         # Read back from a stage's JSON the flags are plain strings: make them members.
@@ -113,6 +129,7 @@ class TimeOffset:
             d["score"] = round(self.score, 4)
         if self.allowed_s is not None:
             d["allowed_s"] = [round(v, 4) for v in self.allowed_s]
+        d["rivals_s"] = [round(v, 4) for v in self.rivals_s]
         return d
 
     def allows(self, offset_s: float) -> bool:
@@ -121,11 +138,21 @@ class TimeOffset:
             return True
         return self.allowed_s[0] - 1e-9 <= offset_s <= self.allowed_s[1] + 1e-9
 
-    def mark_ambiguous(self, reason: str) -> None:
-        """Keep the offset, say why it is uncertain (the first reason stays)."""
-        self.warnings.append(f"the time offset between video and log is uncertain: {reason}")
+    def mark_ambiguous(self, reason: str, rivals_s: tuple[float, ...] = ()) -> None:
+        """Keep the offset, say why it is uncertain (the first reason stays) and which
+        other offsets the evidence pointed at, if any."""
+        self.warnings.append(f"{_UNCERTAIN}{reason}")
         if self.ambiguous_reason is None:
             self.ambiguous_reason = reason
+        self.rivals_s.extend(float(r) for r in rivals_s)
+
+    def copy(self) -> TimeOffset:
+        return TimeOffset(
+            **{**asdict(self), "warnings": list(self.warnings), "rivals_s": list(self.rivals_s)}
+        )
+
+
+_UNCERTAIN = "the time offset between video and log is uncertain: "
 
 
 def prior_offset(
@@ -183,7 +210,8 @@ def _prior_from_recording(
         spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in fitting)
         result.mark_ambiguous(
             f"{len(fitting)} of the log's recording spans are as long as the video "
-            f"({spans}); the one starting at {start:.1f} s was taken"
+            f"({spans}); the one starting at {start:.1f} s was taken",
+            tuple(a for a, _ in fitting if a != start),
         )
     return result
 
@@ -272,6 +300,7 @@ def _estimate(
         warnings=list(prior.warnings),
         allowed_s=prior.allowed_s,
         ambiguous_reason=prior.ambiguous_reason,
+        rivals_s=list(prior.rivals_s),
     )
     if video_t.size < 10 or video_t[-1] - video_t[0] < 5.0:
         result.warnings.append("video too short to estimate the time offset from motion")
@@ -393,7 +422,8 @@ def _check_outside_the_span(
             f"the image motion matches the log best at an offset of {offsets[best]:.1f} s "
             f"(r = {peak:.2f}), which puts the video outside the recording the log marks "
             f"(offsets {lo:.1f} to {hi:.1f} s, r = {peak_inside:.2f} there); the offset was "
-            "kept within the recording. Check that the log is this video's"
+            "kept within the recording. Check that the log is this video's",
+            (float(offsets[best]),),
         )
 
 
@@ -464,9 +494,9 @@ def refine_time_offset(
     # Never an offset that moves the video out of the log's recording span.
     offsets = offsets[[current.allows(float(d)) for d in offsets]]
     if offsets.size < 3:
-        return TimeOffset(**{**asdict(current), "warnings": list(current.warnings)})
+        return current.copy()
     costs = np.array([residual_at(float(d)) for d in offsets])
-    result = TimeOffset(**{**asdict(current), "warnings": list(current.warnings)})
+    result = current.copy()
     if not np.isfinite(costs).any() or traj_t.size < 4:
         return result
     best = int(np.nanargmin(costs))
@@ -479,6 +509,44 @@ def refine_time_offset(
     result.method = OffsetMethod.trajectory_fit
     result.observable = True
     result.score = float(costs[best])
+    return result
+
+
+def weigh_rivals(
+    current: TimeOffset,
+    residual_at: Callable[[float], float],
+    options: TimeOffsetOptions | None = None,
+) -> TimeOffset:
+    """Settle an ambiguous offset that names rivals by the trajectory fit.
+
+    `residual_at` as for `refine_time_offset`. The offset in use keeps its residual;
+    each rival gets its best within +/- `rival_search_s`. When every rival fits at
+    least `rival_ratio` times worse, the ambiguity is cleared and a warning tells what
+    settled it; otherwise the reason is kept with the residuals added to it.
+    """
+    options = options or TimeOffsetOptions()
+    result = current.copy()
+    if result.ambiguous_reason is None or not result.rivals_s:
+        return result
+    kept = residual_at(result.offset_s)
+    steps = np.arange(-options.rival_search_s, options.rival_search_s + 1e-9, options.rival_step_s)
+    rivals = {r: np.array([residual_at(r + float(d)) for d in steps]) for r in result.rivals_s}
+    best = {r: float(np.nanmin(c)) if np.isfinite(c).any() else np.nan for r, c in rivals.items()}
+    fits = ", ".join(f"{v:.2f} m near {r:.1f} s" for r, v in best.items())
+    told = f"fits the log with {kept:.2f} m at {result.offset_s:.2f} s, {fits}"
+    settled = np.isfinite(kept) and all(
+        np.isfinite(v) and v >= options.rival_ratio * kept for v in best.values()
+    )
+    if not settled:
+        result.ambiguous_reason = f"{result.ambiguous_reason}; the camera path {told}"
+        return result
+    result.warnings = [w for w in result.warnings if not w.startswith(_UNCERTAIN)]
+    result.warnings.append(
+        f"the camera path settled the time offset: it {told}, at least "
+        f"{options.rival_ratio:g} times better than the other offsets the evidence pointed "
+        f"at ({result.ambiguous_reason})"
+    )
+    result.ambiguous_reason = None
     return result
 
 
