@@ -3,12 +3,15 @@
 as ambiguous, in the report and the survey's quality verdict, rather than guessed, and
 one the camera path ties down after all settled by it."""
 
+import json
+
 import numpy as np
 import pytest
 
 from worker.pipeline.georef import offset_residual_fn
 from worker.pipeline.ingest.flight_log import build_flight_log
 from worker.pipeline.ingest.time_offset import (
+    UNCERTAIN_OFFSET,
     TimeOffset,
     estimate_time_offset,
     prior_offset,
@@ -16,6 +19,7 @@ from worker.pipeline.ingest.time_offset import (
     weigh_rivals,
 )
 from worker.pipeline.quality import survey_quality
+from worker.pipeline.reconstruction import write_report
 from worker.pipeline.trajectory import Trajectory
 
 RATE_HZ = 10.0
@@ -208,3 +212,23 @@ def test_the_quality_verdict_fails_on_an_ambiguous_offset():
     check = _verdict(sound)
     assert check["passed"] and check["value"] == pytest.approx(20.3, abs=0.4)
     assert "the span the log marks as recording, refined by the image motion" in check["message"]
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_the_report_drops_the_earlier_doubt_once_the_offset_is_settled(tmp_path, seed):
+    """The frames stage said the offset was uncertain; the georeference settled it: the
+    survey's warnings (what the API and the page show) say what settled it, not the
+    doubt. Unsettled, the doubt stays."""
+    log, t, speed = _log(seed, [(20.0, 20.0 + LONG_S)], duration=120.0)
+    found = _contradicted(seed, LONG_S)
+    for true_offset, settled in ((20.3, True), (37.0, False)):
+        path = _camera_path(t, speed, true_offset, LONG_S, seed)
+        residual_at = offset_residual_fn(path, log)
+        weighed = weigh_rivals(refine_time_offset(found, path.t, residual_at), residual_at)
+        (tmp_path / "frames.json").write_text(json.dumps({"time_offset": found.to_dict()}))
+        geo = {"time_offset": weighed.to_dict(), "segments": []}
+        (tmp_path / "georeference.json").write_text(json.dumps(geo))
+        warnings = write_report(tmp_path)["warnings"]
+        doubts = [w for w in warnings if w.startswith(UNCERTAIN_OFFSET)]
+        assert (doubts == []) is settled
+        assert any("the camera path settled" in w for w in warnings) is settled

@@ -83,6 +83,7 @@ from worker.pipeline.ingest.images import read_image_set
 from worker.pipeline.ingest.read_log import read_flight_log
 from worker.pipeline.ingest.recordings import VideoClues
 from worker.pipeline.ingest.time_offset import (
+    UNCERTAIN_OFFSET,
     OffsetMethod,
     PriorSource,
     TimeOffset,
@@ -928,6 +929,10 @@ def write_report(work_dir: Path) -> dict[str, Any]:
     for result in stages.values():
         parts = [result, *(v for v in result.values() if isinstance(v, dict))]
         warnings += [w for part in parts for w in part.get("warnings") or []]
+    final_offset = geo.get("time_offset") or {}
+    if "ambiguous_reason" in final_offset and final_offset["ambiguous_reason"] is None:
+        # The offset the georeference settled supersedes what ingest and frames said of it.
+        warnings = [w for w in warnings if not w.startswith(UNCERTAIN_OFFSET)]
     # A survey that misses its quality bounds says so in its warnings too, which is what
     # the survey's API answer and the page show of the report.
     quality = survey_quality(stages)

@@ -141,7 +141,7 @@ class TimeOffset:
     def mark_ambiguous(self, reason: str, rivals_s: tuple[float, ...] = ()) -> None:
         """Keep the offset, say why it is uncertain (the first reason stays) and which
         other offsets the evidence pointed at, if any."""
-        self.warnings.append(f"{_UNCERTAIN}{reason}")
+        self.warnings.append(f"{UNCERTAIN_OFFSET}{reason}")
         if self.ambiguous_reason is None:
             self.ambiguous_reason = reason
         self.rivals_s.extend(float(r) for r in rivals_s)
@@ -152,7 +152,9 @@ class TimeOffset:
         )
 
 
-_UNCERTAIN = "the time offset between video and log is uncertain: "
+# How an uncertain offset's warning begins (the report drops the earlier stages' ones
+# once the georeference has settled the offset).
+UNCERTAIN_OFFSET = "the time offset between video and log is uncertain: "
 
 
 def prior_offset(
@@ -540,7 +542,7 @@ def weigh_rivals(
     if not settled:
         result.ambiguous_reason = f"{result.ambiguous_reason}; the camera path {told}"
         return result
-    result.warnings = [w for w in result.warnings if not w.startswith(_UNCERTAIN)]
+    result.warnings = [w for w in result.warnings if not w.startswith(UNCERTAIN_OFFSET)]
     result.warnings.append(
         f"the camera path settled the time offset: it {told}, at least "
         f"{options.rival_ratio:g} times better than the other offsets the evidence pointed "
