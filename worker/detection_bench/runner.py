@@ -84,7 +84,8 @@ def default_held_out(names: Sequence[str]) -> list[str]:
 # baseline's LoD costs), "threshold-noflanks" the floor without the flanks that join
 # significant change, "threshold-novolume" the default without its volume test,
 # "threshold-owncontext" the context rule measured from the default's own regions,
-# "threshold-cut" the default with mown grass set aside (an option, off by default).
+# "threshold-cut" the default with mown grass set aside (an option, off by default),
+# "threshold-nofringe" the default's regions without the edge the baseline draws.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-uniform": ("threshold", BASELINE_OPTIONS),
     "threshold-nofloor": ("threshold", {"difference": {"uniform_floor": False}}),
@@ -92,6 +93,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "threshold-novolume": ("threshold", {"vectorize": {"min_volume_z": None}}),
     "threshold-owncontext": ("threshold", {"vectorize": {"context_by_baseline": False}}),
     "threshold-cut": ("threshold", {"vectorize": {"vegetation_cut": True}}),
+    "threshold-nofringe": ("threshold", {"vectorize": {"baseline_fringe_px": 0}}),
 }
 
 

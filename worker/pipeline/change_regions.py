@@ -263,6 +263,50 @@ def significant_regions(rasters: ChangeRasters, options: RegionOptions) -> np.nd
     return clean_mask(changed, options)
 
 
+def baseline_significant(rasters: ChangeRasters) -> np.ndarray | None:
+    """Pixels the simple baseline (one NMAD for the raster) finds significant; None
+    where the difference stage kept no baseline."""
+    if rasters.baseline is None:
+        return None
+    median, lod95 = rasters.baseline
+    with np.errstate(invalid="ignore"):
+        centred = rasters.dh + np.float32(rasters.model.median_dh_m - median)
+        return np.abs(centred) > np.float32(lod95)
+
+
+def grow_into_baseline(
+    labels: np.ndarray,
+    keep: list[int],
+    rasters: ChangeRasters,
+    steps: int,
+    options: RegionOptions,
+) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+    """The kept regions grown, a pixel at a time up to `steps`, into neighbouring pixels
+    of the simple baseline's cleaned regions (hysteresis: the strict test finds a
+    change, the looser one draws its edge); labels (only the kept regions') and their
+    windows. Grown into the baseline's raw significant pixels instead, the regions took
+    in the speckle its opening removes, and a no-change twin's false alarms exceeded the
+    baseline's (ridge-debris seed 1000: 46 849 against 42 589 m²/km²).
+
+    Where change covers much of the steep ground, the per-pixel LoD's steep bins are
+    learnt partly on it and stay above the uniform LoD, and a change's thin edge on a
+    steep flank passes the baseline's test but not the default's: on the paper's mounds
+    the default lost 581 true pixels the baseline found, in pieces of at most 85 pixels
+    along the flanks. Grown only from regions already kept, the rule adds no region."""
+    grown = np.where(np.isin(labels, keep), labels, 0).astype(np.int32)
+    base = baseline_significant(rasters)
+    if base is not None and steps > 0:
+        base = clean_mask(base, options)
+        for _ in range(steps):
+            spread = ndimage.grey_dilation(grown, size=(3, 3))
+            add = (grown == 0) & (spread > 0) & base
+            if not add.any():
+                break
+            grown[add] = spread[add]
+    objects = ndimage.find_objects(grown)
+    return grown, [objects[k - 1] for k in keep]
+
+
 def label_regions(
     mask: np.ndarray, rasters: ChangeRasters, options: RegionOptions
 ) -> tuple[np.ndarray, list[int], list[tuple[slice, slice]]]:
@@ -394,11 +438,10 @@ def judge_by_baseline(
     median, lod95 = rasters.baseline
     with np.errstate(invalid="ignore"):
         centred = rasters.dh + np.float32(rasters.model.median_dh_m - median)
-        changed = np.abs(centred) > np.float32(lod95)
     base_labels, _ = ndimage.label(
-        clean_mask(changed, options), structure=np.ones((3, 3), dtype=bool)
+        clean_mask(np.abs(centred) > np.float32(lod95), options),
+        structure=np.ones((3, 3), dtype=bool),
     )
-    del changed
     base_windows = ndimage.find_objects(base_labels)
     kinds: dict[int, tuple[str, str | None]] = {}
     out = []

@@ -39,10 +39,10 @@ BASELINE_OPTIONS = {"difference": {"error_model": "uniform"}, "vectorize": {"min
 METHOD = DetectionMethod(
     name="threshold",
     summary="The LoD method: every change beyond its per-pixel level of detection "
-    "(LoD95 from slope and curvature, never below the raster's one-NMAD LoD), larger than "
-    "the errors' correlation or, if smaller, twice its LoD, and with a loss or gain volume "
-    "3 standard errors clear of zero; trees and buildings that changed on unmoved ground are "
-    "set aside.",
+    "(LoD95 from slope and curvature, never below the raster's one-NMAD LoD; edges drawn out "
+    "to that LoD), larger than the errors' correlation or, if smaller, twice its LoD, and "
+    "with a loss or gain volume 3 standard errors clear of zero; trees and buildings that "
+    "changed on unmoved ground are set aside.",
     stage=StageSpec(
         name="vectorize",
         run=run_vectorize,

@@ -341,7 +341,7 @@ export const messages = {
   // them as of writing, for translators); another language shows its own, or the
   // server's for an identifier it does not know (serverWords in ../index.ts).
   "method.threshold":
-    "The LoD method: every change beyond its per-pixel level of detection (LoD95 from slope and curvature, never below the raster's one-NMAD LoD), larger than the errors' correlation or, if smaller, twice its LoD, and with a loss or gain volume 3 standard errors clear of zero; trees and buildings that changed on unmoved ground are set aside.",
+    "The LoD method: every change beyond its per-pixel level of detection (LoD95 from slope and curvature, never below the raster's one-NMAD LoD; edges drawn out to that LoD), larger than the errors' correlation or, if smaller, twice its LoD, and with a loss or gain volume 3 standard errors clear of zero; trees and buildings that changed on unmoved ground are set aside.",
   "method.scored":
     "Significant change (per-pixel LoD and area tests), each candidate scored as a landslide probability by a calibrated model; trees and buildings set aside. Fewer false alarms than threshold, but it found 36 of 45 deep slides where threshold found 41 (docs/significance.md).",
   "method.cnn":
