@@ -33,20 +33,25 @@ def change_rasters(
     )
 
 
-def uniform_change_rasters(
-    pre: np.ndarray, post: np.ndarray, pixel_size: float, sigma: float
-) -> ChangeRasters:
-    """The change between two DSMs under one sigma everywhere (errors uncorrelated)."""
-    model = ErrorModel(
+def uniform_error_model(pixel_size: float, sigma: float, pixels: int) -> ErrorModel:
+    """One sigma everywhere, errors uncorrelated."""
+    return ErrorModel(
         pixel_size=pixel_size,
         slope_centres_deg=[0.0],
         curvature_centres=[0.0],
         sigma_table=[[sigma]],
         median_dh_m=0.0,
         nmad_m=sigma,
-        stable_pixels=pre.size,
+        stable_pixels=pixels,
         variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
     )
+
+
+def uniform_change_rasters(
+    pre: np.ndarray, post: np.ndarray, pixel_size: float, sigma: float
+) -> ChangeRasters:
+    """The change between two DSMs under one sigma everywhere (errors uncorrelated)."""
+    model = uniform_error_model(pixel_size, sigma, pre.size)
     lod = np.full(pre.shape, LOD_Z * sigma, np.float32)
     dh = (post - pre).astype(np.float32)
     return change_rasters(

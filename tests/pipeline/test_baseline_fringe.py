@@ -4,14 +4,14 @@ but not from the baseline's, and no change the per-pixel LoD did not find is add
 
 import numpy as np
 
-from tests.pipeline.change_rasters import change_rasters
+from tests.pipeline.change_rasters import change_rasters, uniform_error_model
 from worker.pipeline.change_regions import (
     describe_region,
     grow_into_baseline,
     label_regions,
     significant_regions,
 )
-from worker.pipeline.error_model import LOD_Z, ErrorModel, VariogramModel
+from worker.pipeline.error_model import LOD_Z
 from worker.pipeline.vectorize import VectorizeOptions
 
 PIXEL_M = 0.1
@@ -36,16 +36,7 @@ def _scarp(seed: int, with_slide: bool = True):
         dh[ring] -= 0.07
     lod[15:35, 15:35] = STEEP_LOD_M
     dh[20:30, 20:30] -= 0.07  # a patch on steep ground only the baseline finds
-    model = ErrorModel(
-        pixel_size=PIXEL_M,
-        slope_centres_deg=[0.0],
-        curvature_centres=[0.0],
-        sigma_table=[[SIGMA_M]],
-        median_dh_m=0.0,
-        nmad_m=SIGMA_M,
-        stable_pixels=dh.size,
-        variogram=VariogramModel(nugget=1.0, ranges_m=[], psills=[]),
-    )
+    model = uniform_error_model(PIXEL_M, SIGMA_M, dh.size)
     rasters = change_rasters(dh, lod, model, PIXEL_M)
     rasters.baseline = (0.0, LOD_Z * SIGMA_M)
     return rasters, radius < 23
