@@ -92,8 +92,9 @@ class TimeOffsetOptions:
     min_contradicting_video_s: float = 20.0
     # `weigh_rivals`: each rival's best residual within +/- rival_search_s, and how many
     # times worse than the kept offset's every rival must fit to settle the offset. On
-    # flights whose recorded span was right, the motion's rival 6 s away fitted 5-7 times
-    # worse; a path that cannot tell the offsets apart fits them about equally.
+    # three mounds flights whose recorded span was right (seeds 105, 119, 120) the
+    # motion's rival 4-19 s away fitted 4.7-50 times worse; a path that cannot tell the
+    # offsets apart fits them about equally.
     rival_search_s: float = 1.0
     rival_step_s: float = 0.1
     rival_ratio: float = 3.0
