@@ -12,6 +12,7 @@ import pytest
 from rasterio.transform import Affine
 from shapely.geometry import box
 
+from tests.reconstruction.keyframe_maps import keyframe_map
 from worker.pipeline.dsm_export import DsmOptions
 from worker.pipeline.footprints import (
     camera_footprint,
@@ -148,7 +149,6 @@ def survey_map(
 ) -> SparseMap:
     """Nadir cameras at `height` over flat ground at z = 0, each observing the points
     (N, 3) inside its footprint, and those `also_observed` gives it (indices)."""
-    n = len(centres)
     poses = [nadir_pose(x, y, height) for x, y in centres]
     r = np.array([p[0] for p in poses])
     tr = np.array([p[1] for p in poses])
@@ -161,20 +161,7 @@ def survey_map(
         seen = np.union1d(seen, (also_observed or {}).get(i, []))
         obs_kf += [i] * len(seen)
         obs_point += seen.astype(int).tolist()
-    return SparseMap.from_keyframes(
-        K,
-        (WIDTH, HEIGHT),
-        t=np.arange(n, dtype=float),
-        r=r,
-        tr=tr,
-        segment=np.zeros(n),
-        obs_kf=np.array(obs_kf),
-        obs_point=np.array(obs_point),
-        obs_uv=np.zeros((len(obs_kf), 2)),
-        point_id=np.arange(len(points)),
-        point_xyz=points,
-        point_segment=np.zeros(len(points)),
-    )
+    return keyframe_map(K, (WIDTH, HEIGHT), r, tr, obs_kf, obs_point, points)
 
 
 def ground_lattice(left: float, bottom: float, right: float, top: float, step: float) -> np.ndarray:

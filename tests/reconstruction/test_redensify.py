@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from tests.reconstruction.keyframe_maps import keyframe_map
 from tests.reconstruction.test_slam_parts import K, render_gray, terrain  # noqa: F401
 from worker.pipeline.slam.redensify import (
     KeyframePoses,
@@ -10,7 +11,6 @@ from worker.pipeline.slam.redensify import (
     plan_redensify,
     redensify,
 )
-from worker.pipeline.slam.result import SparseMap
 
 # Four keyframes along a line 60 m above the ground, 6 m apart (a baseline of a tenth of
 # the depth, as the flights' pairs have).
@@ -46,20 +46,7 @@ def _survey(terrain):  # noqa: F811
         seen = np.flatnonzero((u >= 0) & (u < 640) & (v >= 0) & (v < 360))
         obs_kf += [i] * len(seen)
         obs_point += seen.tolist()
-    sparse = SparseMap.from_keyframes(
-        K,
-        (640, 360),
-        t=np.arange(len(CENTRES), dtype=float),
-        r=r,
-        tr=tr,
-        segment=np.zeros(len(CENTRES)),
-        obs_kf=np.array(obs_kf),
-        obs_point=np.array(obs_point),
-        obs_uv=np.zeros((len(obs_kf), 2)),
-        point_id=np.arange(len(points)),
-        point_xyz=points,
-        point_segment=np.zeros(len(points)),
-    )
+    sparse = keyframe_map(K, (640, 360), r, tr, obs_kf, obs_point, points)
     rng = np.random.default_rng(5)
     wrong = rng.uniform([-20, -10, 30], [20, 10, 90], (1000, 3)).astype(np.float32)
     sparse.dense_kf = np.zeros(1000, np.int32)
