@@ -263,14 +263,22 @@ def significant_regions(rasters: ChangeRasters, options: RegionOptions) -> np.nd
     return clean_mask(changed, options)
 
 
+def baseline_difference(rasters: ChangeRasters) -> tuple[np.ndarray, float]:
+    """dh centred on the simple baseline's median, and its LoD95 (one NMAD for the
+    raster); only where the difference stage kept a baseline (`rasters.baseline`)."""
+    if rasters.baseline is None:
+        raise ValueError("the difference stage kept no baseline for these rasters")
+    median, lod95 = rasters.baseline
+    return rasters.dh + np.float32(rasters.model.median_dh_m - median), float(lod95)
+
+
 def baseline_significant(rasters: ChangeRasters) -> np.ndarray | None:
-    """Pixels the simple baseline (one NMAD for the raster) finds significant; None
-    where the difference stage kept no baseline."""
+    """Pixels the simple baseline finds significant; None where the difference stage
+    kept no baseline."""
     if rasters.baseline is None:
         return None
-    median, lod95 = rasters.baseline
+    centred, lod95 = baseline_difference(rasters)
     with np.errstate(invalid="ignore"):
-        centred = rasters.dh + np.float32(rasters.model.median_dh_m - median)
         return np.abs(centred) > np.float32(lod95)
 
 
@@ -435,13 +443,11 @@ def judge_by_baseline(
         return regions
     if all(r.kind == SURFACE_CHANGE for r in regions):
         return regions
-    median, lod95 = rasters.baseline
+    centred, lod95 = baseline_difference(rasters)
     with np.errstate(invalid="ignore"):
-        centred = rasters.dh + np.float32(rasters.model.median_dh_m - median)
-    base_labels, _ = ndimage.label(
-        clean_mask(np.abs(centred) > np.float32(lod95), options),
-        structure=np.ones((3, 3), dtype=bool),
-    )
+        changed = np.abs(centred) > np.float32(lod95)
+    base_labels, _ = ndimage.label(clean_mask(changed, options), structure=np.ones((3, 3), bool))
+    del changed
     base_windows = ndimage.find_objects(base_labels)
     kinds: dict[int, tuple[str, str | None]] = {}
     out = []
