@@ -18,8 +18,11 @@ async function route(): Promise<void> {
   const hash = location.hash.replace(/^#/, "") || "/";
   if (!session.token) {
     renderSignIn(app, () => {
-      location.hash = hash === "/sign-in" ? "#/" : `#${hash}`;
-      void route();
+      // A changed hash routes by its event; routing here too drew the page twice, and
+      // the second drawing dropped what the user had begun to type.
+      const target = hash === "/sign-in" ? "#/" : `#${hash}`;
+      if (location.hash === target) void route();
+      else location.hash = target;
     });
     return;
   }

@@ -111,3 +111,31 @@ def test_the_platform_administrator_creates_disables_and_enables_a_user(
     row.get_by_role("button", name="Enable").click()
     expect(row).not_to_contain_text("disabled")
     assert signs_in() == 200
+
+
+def test_signing_in_draws_the_sites_page_once(page: Page, app_server: App) -> None:
+    """Signing in leads to the sites page once: drawn a second time (by the hash change
+    the sign-in makes, after the page was drawn for it), the page dropped what the user
+    had begun typing into the new-site form."""
+    _user(app_server, "ada", "versante-stabile")
+    page.goto(app_server.url + "/")
+    expect(page.get_by_role("heading", name="Sign in")).to_be_visible()
+    page.evaluate(
+        """() => {
+            window.siteFormsDrawn = 0;
+            new MutationObserver((records) => {
+                for (const r of records)
+                    for (const n of r.addedNodes)
+                        if (n.querySelector?.("#new-site")) window.siteFormsDrawn += 1;
+            }).observe(document.getElementById("app"), { childList: true, subtree: true });
+        }"""
+    )
+    page.get_by_label("User name").fill("ada")
+    page.get_by_label("Password").fill("versante-stabile")
+    page.get_by_role("button", name="Sign in").click()
+    expect(page.get_by_role("heading", name="Sites")).to_be_visible()
+    page.get_by_label("Name").fill("North scarp")
+    page.wait_for_load_state("networkidle")
+    page.wait_for_timeout(500)
+    assert page.evaluate("window.siteFormsDrawn") == 1
+    expect(page.get_by_label("Name")).to_have_value("North scarp")
