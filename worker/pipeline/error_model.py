@@ -38,6 +38,7 @@ from scipy import ndimage, optimize
 
 from worker.pipeline.binned import bin_index, binned_mean, binned_nmad
 from worker.pipeline.binned import nmad as robust_nmad
+from worker.pipeline.sampling import sorted_sample
 
 LOD_Z = 1.96  # two-sided 95 % for a normal error
 SLOPE_EDGES_DEG = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 60.0, 70.0, 90.0)
@@ -372,7 +373,7 @@ def _fit_heteroscedasticity(
 ) -> ErrorModel:
     index = np.flatnonzero(stable.ravel())
     if index.size > options.max_samples:
-        index = np.sort(rng.choice(index, options.max_samples, replace=False))
+        index = sorted_sample(rng, index, options.max_samples)
     values = dh.ravel()[index].astype(np.float64)
     s = slope.ravel()[index].astype(np.float64)
     c = curvature.ravel()[index].astype(np.float64)

@@ -18,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from worker.pipeline.binned import bin_index, binned_median
+from worker.pipeline.sampling import sorted_sample
 
 ASPECT_BINS = 72
 
@@ -52,7 +53,7 @@ def nuth_kaab_shift(
     if index.size == 0:
         raise NuthKaabError("no stable pixel with a slope to fit the shift on")
     if index.size > subsample:
-        index = np.sort(np.random.default_rng(seed).choice(index, subsample, replace=False))
+        index = sorted_sample(np.random.default_rng(seed), index, subsample)
     rows, cols = np.unravel_index(index, reference.shape)
     ref_values = reference.ravel()[index].astype(np.float64)
     tan_values, aspect_values = slope_tan.ravel()[index], aspect.ravel()[index]
