@@ -6,6 +6,7 @@ import numpy as np
 
 from tests.pipeline.change_rasters import change_rasters, uniform_error_model
 from worker.pipeline.change_regions import (
+    BaselineTest,
     describe_region,
     grow_into_baseline,
     label_regions,
@@ -38,7 +39,7 @@ def _scarp(seed: int, with_slide: bool = True):
     dh[20:30, 20:30] -= 0.07  # a patch on steep ground only the baseline finds
     model = uniform_error_model(PIXEL_M, SIGMA_M, dh.size)
     rasters = change_rasters(dh, lod, model, PIXEL_M)
-    rasters.baseline = (0.0, LOD_Z * SIGMA_M)
+    rasters.baseline = BaselineTest(0.0, LOD_Z * SIGMA_M)
     return rasters, radius < 23
 
 

@@ -1,13 +1,25 @@
 """difference: dh, the per-pixel LoD95 of the error model, and the significance coding."""
 
 import json
+import math
 
 import numpy as np
 import pytest
 import rasterio
 from rasterio.transform import from_origin
+from scipy import ndimage
 
+from tests.pipeline.change_rasters import change_rasters, uniform_error_model
+from worker.pipeline.change_regions import (
+    BaselineTest,
+    RegionOptions,
+    label_regions,
+    load_change_rasters,
+    min_area_m2,
+    significant_regions,
+)
 from worker.pipeline.difference import DifferenceOptions, difference
+from worker.pipeline.error_model import VariogramModel
 from worker.pipeline.errors import InputError
 from worker.pipeline.raster_io import read_elevation, write_geotiff
 
@@ -181,3 +193,63 @@ def test_the_flanks_of_a_deep_loss_on_steep_ground_join_it(tmp_path):
 def _marked_share(significance, where):
     marked = (significance == 1) | (significance == 2)
     return np.count_nonzero(marked & where) / np.count_nonzero(where)
+
+
+def test_the_default_keeps_no_region_smaller_than_the_baselines_minimum(tmp_path):
+    """The default's minimum area comes from the longer of its own correlation length and
+    the simple baseline's, which the difference stage records beside the baseline's LoD:
+    the default never keeps a patch of correlated error the baseline's minimum area
+    rejects."""
+    rng = np.random.default_rng(3)
+    pre = np.full((300, 300), 100.0, np.float32)
+    # Errors correlated over a few metres, on 0.5 m pixels.
+    noise = ndimage.gaussian_filter(rng.normal(size=pre.shape), 4.0)
+    post = (pre + 0.05 * noise / noise.std()).astype(np.float32)
+    post[100:160, 100:160] -= 1.0
+    transform = from_origin(500000, 5100000, 0.5, 0.5)
+    write_geotiff(tmp_path / "pre.tif", pre, transform, "EPSG:32632")
+    write_geotiff(tmp_path / "post.tif", post, transform, "EPSG:32632")
+
+    def rasters(name, options):
+        out = tmp_path / name
+        out.mkdir()
+        result = difference(
+            tmp_path / "pre.tif", tmp_path / "post.tif", out / "dh.tif", out / "sig.tif", options
+        )
+        return result, load_change_rasters(out / "dh.tif", out / "sig.tif")
+
+    uniform, base = rasters("uniform", DifferenceOptions(error_model="uniform"))
+    default, own = rasters("default", None)
+    assert own.baseline is not None and base.baseline is None
+    assert own.baseline.correlation_length_m == pytest.approx(uniform.correlation_length_m)
+    assert default.baseline_correlation_length_m == own.baseline.correlation_length_m
+    assert uniform.baseline_correlation_length_m is None
+    assert uniform.correlation_length_m > 1.0  # the errors' correlation was found
+    options = RegionOptions()
+    assert min_area_m2(own, options) >= min_area_m2(base, options) - 1e-9
+    expected = max(default.correlation_length_m, uniform.correlation_length_m)
+    assert min_area_m2(own, options) == pytest.approx(
+        max(options.min_area_px * 0.25, math.pi * (expected / 2) ** 2)
+    )
+
+
+def test_a_patch_under_the_baselines_minimum_area_is_not_kept():
+    """A patch of change whose area lies between the minimum the default's own
+    correlation length gives and the baseline's is dropped (when not strong enough for
+    the small-region rule), and kept when no baseline length is recorded."""
+    pixel = 0.5
+    dh = np.zeros((100, 100), np.float32)
+    dh[40:50, 40:50] = -0.15  # 25 m2 at 1.5 LoDs
+    lod = np.full(dh.shape, 0.1, np.float32)
+    model = uniform_error_model(pixel, 0.1 / 1.96, dh.size)
+    model.variogram = VariogramModel(nugget=0.2, ranges_m=[5.0], psills=[0.8])  # L = 5 m
+    rasters = change_rasters(dh, lod, model, pixel)
+    options = RegionOptions(opening_px=0, closing_px=0)
+    own = min_area_m2(rasters, options)
+    assert own == pytest.approx(math.pi * 2.5**2)  # 19.6 m2
+    _, keep, _ = label_regions(significant_regions(rasters, options), rasters, options)
+    assert len(keep) == 1
+    rasters.baseline = BaselineTest(0.0, 0.1, correlation_length_m=6.0)  # 28.3 m2
+    assert min_area_m2(rasters, options) == pytest.approx(math.pi * 3.0**2)
+    _, keep, _ = label_regions(significant_regions(rasters, options), rasters, options)
+    assert keep == []

@@ -14,6 +14,7 @@ from tests.pipeline.change_rasters import uniform_change_rasters
 from worker.pipeline.change_regions import (
     LANDSLIDE,
     SURFACE_CHANGE,
+    BaselineTest,
     ChangeRasters,
     Region,
     RegionOptions,
@@ -161,7 +162,7 @@ def test_a_region_the_baseline_sets_aside_as_trees_is_set_aside():
     rasters.significance[40:60, 40:58] = 0  # NO_CHANGE under the canopy's LoD
     options = RegionOptions()
     assert _judged(rasters, options)[0] == [LANDSLIDE]  # judged alone
-    rasters.baseline = (0.0, LOD_Z * SIGMA)  # median, LoD95 of one NMAD
+    rasters.baseline = BaselineTest(0.0, LOD_Z * SIGMA)  # median, LoD95 of one NMAD
     assert _judged(rasters, options)[1] == [SURFACE_CHANGE]
 
 
@@ -169,7 +170,7 @@ def test_a_forested_slide_stays_a_landslide_when_judged_on_the_baseline():
     options = RegionOptions()
     for seed in range(3):
         rasters, _ = _forest_pair(seed)
-        rasters.baseline = (0.0, LOD_Z * SIGMA)
+        rasters.baseline = BaselineTest(0.0, LOD_Z * SIGMA)
         before, after = _judged(rasters, options)
         assert before == after, f"seed {seed}"
         assert LANDSLIDE in after
@@ -207,7 +208,7 @@ def test_crowns_a_slide_took_join_it_as_far_as_the_baseline_joins_them():
     alone, _ = split_surface_changes(regions, options)
     assert len(alone) == 1  # the crowns read as felling
 
-    rasters.baseline = (0.0, LOD_Z * SIGMA)
+    rasters.baseline = BaselineTest(0.0, LOD_Z * SIGMA)
     judged = judge_by_baseline(rasters, labels, keep, windows, regions, options)
     landslides, surface = split_surface_changes(judged, options)
     assert len(landslides) == 2 and not surface

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,9 +45,11 @@ NO_CHANGE, LOSS, GAIN = 0, 1, 2
 ERROR_MODELS = ("heteroscedastic", "uniform")
 LOD_FILE = "lod.tif"
 ERROR_MODEL_FILE = "error_model.json"
-# Tags of the significance mask: the simple baseline's median and LoD95 (floored only).
+# Tags of the significance mask: the simple baseline's median, LoD95 and correlation
+# length (floored only).
 BASELINE_MEDIAN_TAG = "BASELINE_MEDIAN_M"
 BASELINE_LOD_TAG = "BASELINE_LOD_M"
+BASELINE_CORRELATION_TAG = "BASELINE_CORRELATION_LENGTH_M"
 __all__ = ["GAIN", "LOD_Z", "LOSS", "NO_CHANGE", "DifferenceOptions", "difference"]
 
 
@@ -83,6 +85,9 @@ class DifferenceResult(StageResult):
     lod_p90_m: float
     error_model: str  # heteroscedastic, uniform or fixed
     correlation_length_m: float
+    # The simple baseline's, which the default's minimum area is never below; None where
+    # the LoD is not floored at the baseline's.
+    baseline_correlation_length_m: float | None
     sigma_by_slope: list[list[float]]  # [slope_deg, sigma_m] on the least curved ground
     median_dh_m: float  # on stable terrain
     stable_pixels: int
@@ -139,10 +144,20 @@ def difference(
     del mean_surface
     progress(0.3)
     model, sigma = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
-    progress(0.7)
+    progress(0.6)
     floored = (
         options.uniform_floor and options.error_model == "heteroscedastic" and options.lod_m is None
     )
+    baseline_length = None
+    if floored:
+        # The baseline's own correlation length, so that the default's minimum area is
+        # never below the baseline's (change_regions.min_area_m2).
+        uniform = replace(options, error_model="uniform")
+        baseline_model, _ = _error_model(
+            dh, slope, curvature, pixel_size, stable, median, nmad, uniform
+        )
+        baseline_length = float(baseline_model.correlation_length_m)
+    progress(0.7)
     if options.lod_m is not None:
         if not options.lod_m > 0:
             raise InputError("the level of detection must be a positive number of metres")
@@ -184,7 +199,11 @@ def difference(
     if floored:
         # The baseline's own test, so that its regions can be judged as the baseline
         # judges them (change_regions.baseline_surface_changes).
-        tags |= {BASELINE_MEDIAN_TAG: repr(float(median)), BASELINE_LOD_TAG: repr(float(lod95))}
+        tags |= {
+            BASELINE_MEDIAN_TAG: repr(float(median)),
+            BASELINE_LOD_TAG: repr(float(lod95)),
+            BASELINE_CORRELATION_TAG: repr(baseline_length),
+        }
     write_geotiff(significance_out, significance, transform, crs, tags=tags)
     progress(1.0)
     return DifferenceResult(
@@ -195,6 +214,7 @@ def difference(
         lod_p90_m=float(np.percentile(lod_values, 90)),
         error_model=kind,
         correlation_length_m=float(model.correlation_length_m),
+        baseline_correlation_length_m=baseline_length,
         sigma_by_slope=[
             [round(s, 1), round(v, 4)]
             for s, v in zip(model.slope_centres_deg, model.sigma_table[0], strict=True)
