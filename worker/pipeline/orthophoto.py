@@ -137,11 +137,15 @@ class _Camera:
         self, r: np.ndarray, t: np.ndarray, xyz: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel u, v and depth of world points (N, 3) in a camera x = R X + t."""
-        cam = xyz @ r.T.astype(xyz.dtype) + t.astype(xyz.dtype)
-        z = cam[:, 2]
+        # R X^T, not X R^T: numpy multiplies an (N, 3) array by a transposed 3 x 3 view
+        # about ten times slower (0.2 s for the million cells of one depth buffer; the
+        # orthophoto stage spent more time here than anywhere else).
+        cam = r.astype(xyz.dtype) @ xyz.T
+        cam += t.astype(xyz.dtype)[:, None]
+        z = cam[2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            x = cam[:, 0] / z
-            y = cam[:, 1] / z
+            x = cam[0] / z
+            y = cam[1] / z
         if np.any(self.distortion):
             k1, k2, p1, p2, k3 = self.distortion[:5]
             r2 = x * x + y * y
