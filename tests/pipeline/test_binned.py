@@ -8,7 +8,7 @@ import pytest
 from rasterio.crs import CRS
 from rasterio.transform import from_origin
 
-from worker.pipeline.binned import bin_index, binned_nmad
+from worker.pipeline.binned import bin_index, binned_median, binned_nmad
 from worker.pipeline.nuth_kaab import NuthKaabError, nuth_kaab_shift
 
 
@@ -91,3 +91,20 @@ def test_nuth_kaab_on_flat_ground_says_there_is_nothing_to_fit():
             flat, flat, np.ones(flat.shape, bool), (1.0, 1.0),
             max_iterations=5, tolerance_px=0.01, subsample=1000, seed=0,
         )  # fmt: skip
+
+
+def test_binned_median_is_each_bins_median():
+    """Every bin's median as numpy gives it, for odd and even counts, ties, empty bins
+    and values outside every bin."""
+    rng = np.random.default_rng(5)
+    values = np.round(rng.normal(size=50_001), 2)  # rounded: many ties
+    bins = rng.integers(-1, 40, values.size)
+    bins[bins == 7] = 8  # bin 7 empty
+    counts, medians = binned_median(values, bins, 41)
+    for b in range(41):
+        inside = values[bins == b]
+        assert counts[b] == inside.size
+        if inside.size:
+            assert medians[b] == np.median(inside)
+        else:
+            assert np.isnan(medians[b])

