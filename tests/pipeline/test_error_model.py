@@ -55,7 +55,7 @@ def test_recovers_a_known_sigma_of_slope_within_10_percent():
     noise = 0.6 * rng.normal(size=surface.shape) + 0.8 * _correlated(rng, surface.shape, 2)
     dh = (noise * _true_sigma(slope)).astype(np.float32)
     dh[100:140, 250:300] -= 3.0  # a landslide must not inflate its bins
-    model, _ = fit_error_model(dh, slope, curvature, PIXEL)
+    model = fit_error_model(dh, slope, curvature, PIXEL).model
     sigma = model.sigma(slope, curvature)
     ratios = []
     for low in range(0, 45, 5):
@@ -92,7 +92,7 @@ def test_per_pixel_lod_covers_95_percent_on_flat_and_steep_ground():
         surface = _valley(300)
         slope, curvature = terrain_attributes(surface, PIXEL)
         dh = (rng.normal(size=surface.shape) * _true_sigma(slope)).astype(np.float32)
-        model, _ = fit_error_model(dh, slope, curvature, PIXEL)
+        model = fit_error_model(dh, slope, curvature, PIXEL).model
         lod = LOD_Z * model.sigma(slope, curvature)
         beyond = np.abs(dh - model.median_dh_m) > lod
         exceed["flat"].append(beyond[slope < 10].mean())
@@ -108,7 +108,7 @@ def test_effective_samples_match_the_spread_of_area_means():
         np.float32
     )
     flat = np.zeros(shape, np.float32)
-    model, _ = fit_error_model(dh, flat, flat, PIXEL)
+    model = fit_error_model(dh, flat, flat, PIXEL).model
     side = 20  # 10 m squares: the mean over each, compared with sigma / sqrt(n_eff)
     means = [
         dh[r : r + side, c : c + side].mean()
@@ -129,7 +129,7 @@ def test_polygon_intervals_cover_the_planted_slide():
         true_dh[60:100, 70:120] = -1.2
         dh = (true_dh + noise).astype(np.float32)
         flat = np.zeros(shape, np.float32)
-        model, _ = fit_error_model(dh, flat, flat, PIXEL)
+        model = fit_error_model(dh, flat, flat, PIXEL).model
         lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
         rasters = change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
         options = RegionOptions()
@@ -159,7 +159,7 @@ def _no_change_rasters(seed: int, width_px: float, planted: bool) -> ChangeRaste
         dh[200:203, 60:63] += 3.0  # a spike of the reconstruction, 2.25 m2
     dh = dh.astype(np.float32)
     flat = np.zeros(shape, np.float32)
-    model, _ = fit_error_model(dh, flat, flat, PIXEL)
+    model = fit_error_model(dh, flat, flat, PIXEL).model
     lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
     return change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
 
@@ -251,7 +251,7 @@ def test_change_over_much_of_the_steep_ground_does_not_inflate_its_sigma():
     assert 0.4 < pits.sum() / steep.sum() < 0.5
 
     def steep_ratio(options: ErrorModelOptions) -> float:
-        _, sigma = fit_error_model(dh, slope, curvature, PIXEL, options)
+        sigma = fit_error_model(dh, slope, curvature, PIXEL, options).sigma
         band = steep & ~pits
         return float(np.median(sigma[band] / true_sigma[band]))
 
@@ -287,7 +287,7 @@ def test_correlated_error_past_the_pixel_lod_is_dropped_by_its_volume(tmp_path):
         dh[100:124, 140:160] -= 0.5
         dh = dh.astype(np.float32)
         flat = np.zeros(shape, np.float32)
-        model, _ = fit_error_model(dh, flat, flat, PIXEL)
+        model = fit_error_model(dh, flat, flat, PIXEL).model
         lod = (LOD_Z * model.sigma(flat, flat)).astype(np.float32)
         rasters = change_rasters((dh - model.median_dh_m).astype(np.float32), lod, model, PIXEL)
         dh_path, sig_path = _write_change(tmp_path / f"seed{seed}", rasters)
@@ -307,3 +307,25 @@ def test_correlated_error_past_the_pixel_lod_is_dropped_by_its_volume(tmp_path):
         dropped += counts[None] - counts[3.0]
     assert chance >= 20  # the pixel LoD alone passes patches of such errors
     assert dropped >= chance / 3  # 16 of 42 when written
+
+
+def test_a_first_round_on_gentle_ground_still_gives_a_table_of_every_slope():
+    """A first round limited to candidate pixels (as the simple baseline's, which may be
+    a co-registration's mask without the steep ground) is the fit those pixels give
+    alone; the model returned is fitted again over every pixel, steep bins included."""
+    rng = np.random.default_rng(3)
+    surface = _valley()
+    slope, curvature = terrain_attributes(surface, PIXEL)
+    noise = 0.6 * rng.normal(size=surface.shape) + 0.8 * _correlated(rng, surface.shape, 2)
+    dh = (noise * _true_sigma(slope)).astype(np.float32)
+    gentle = slope < 15.0
+    model, _, first = fit_error_model(dh, slope, curvature, PIXEL, first_candidates=gentle)
+    alone = fit_error_model(
+        dh, slope, curvature, PIXEL, ErrorModelOptions(strong_change_lod_ratio=None), gentle
+    ).model
+    assert first.sigma_table == alone.sigma_table
+    assert first.correlation_length_m == alone.correlation_length_m
+    assert max(first.slope_centres_deg) < 15.0 < max(model.slope_centres_deg)
+    steep = slope > 35.0
+    ratio = np.median(model.sigma(slope, curvature)[steep] / _true_sigma(slope[steep]))
+    assert 0.9 < ratio < 1.1

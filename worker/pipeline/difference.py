@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -143,20 +143,12 @@ def difference(
     slope, curvature = terrain_attributes(mean_surface, pixel_size, options.attribute_scale_m)
     del mean_surface
     progress(0.3)
-    model, sigma = _error_model(dh, slope, curvature, pixel_size, stable, median, nmad, options)
-    progress(0.6)
     floored = (
         options.uniform_floor and options.error_model == "heteroscedastic" and options.lod_m is None
     )
-    baseline_length = None
-    if floored:
-        # The baseline's own correlation length, so that the default's minimum area is
-        # never below the baseline's (change_regions.min_area_m2).
-        uniform = replace(options, error_model="uniform")
-        baseline_model, _ = _error_model(
-            dh, slope, curvature, pixel_size, stable, median, nmad, uniform
-        )
-        baseline_length = float(baseline_model.correlation_length_m)
+    model, sigma, baseline_length = _error_model(
+        dh, slope, curvature, pixel_size, stable, median, nmad, options, floored
+    )
     progress(0.7)
     if options.lod_m is not None:
         if not options.lod_m > 0:
@@ -254,23 +246,33 @@ def _error_model(
     median: float,
     nmad: float,
     options: DifferenceOptions,
-) -> tuple[ErrorModel, np.ndarray]:
-    """The error model and its sigma_dh per pixel (float32)."""
+    floored: bool,
+) -> tuple[ErrorModel, np.ndarray, float | None]:
+    """The error model, its sigma_dh per pixel (float32) and, where the LoD is floored
+    at the simple baseline's, the baseline's correlation length (else None)."""
     model_options = ErrorModelOptions(
         attribute_scale_m=options.attribute_scale_m,
         strong_change_lod_ratio=options.strong_change_lod_ratio,
     )
     if options.error_model == "heteroscedastic":
         try:
-            return fit_error_model(dh, slope, curvature, pixel_size, model_options)
+            # Floored, the fit's first round looks for stable terrain where the baseline
+            # does, and so is the baseline's own fit: its correlation length keeps the
+            # default's minimum area from going below the baseline's
+            # (change_regions.min_area_m2).
+            model, sigma, first = fit_error_model(
+                dh, slope, curvature, pixel_size, model_options,
+                first_candidates=stable if floored else None,
+            )  # fmt: skip
         except ValueError as exc:
             raise InputError(f"cannot learn the error of the difference: {exc}") from None
+        return model, sigma, float(first.correlation_length_m) if floored else None
     # The uniform baseline: one sigma everywhere, as it always was; the variogram of a
     # single fit still gives intervals.
     model_options.strong_change_lod_ratio = None
-    model, _ = fit_error_model(
+    model = fit_error_model(
         dh, slope, curvature, pixel_size, model_options, candidate_stable=stable
-    )
+    ).model
     model.slope_centres_deg = [0.0]
     model.curvature_centres = [0.0]
     model.sigma_table = [[max(nmad, 1e-6)]]
@@ -278,7 +280,7 @@ def _error_model(
     model.median_dh_m = median
     model.nmad_m = nmad
     model.stable_pixels = int(np.count_nonzero(stable))
-    return model, model.sigma(slope, curvature)
+    return model, model.sigma(slope, curvature), None
 
 
 def _stable_pixels(

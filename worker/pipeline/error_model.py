@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import ndimage, optimize
@@ -269,6 +269,12 @@ def terrain_attributes(
     return slope, curvature
 
 
+class ErrorModelFit(NamedTuple):
+    model: ErrorModel
+    sigma: np.ndarray  # sigma_dh per pixel, float32
+    first_round: ErrorModel  # the model of the fit's first round
+
+
 def fit_error_model(
     dh: np.ndarray,
     slope_deg: np.ndarray,
@@ -276,13 +282,18 @@ def fit_error_model(
     pixel_size: float,
     options: ErrorModelOptions | None = None,
     candidate_stable: np.ndarray | None = None,
-) -> tuple[ErrorModel, np.ndarray]:
-    """Fit sigma_dh(slope, curvature) and the variogram of the standardised difference;
-    return the model and its sigma_dh at every pixel (float32), which the fit computes
-    anyway (a second pass over a large raster costs seconds).
+    first_candidates: np.ndarray | None = None,
+) -> ErrorModelFit:
+    """Fit sigma_dh(slope, curvature) and the variogram of the standardised difference:
+    the model, its sigma_dh at every pixel (float32), which the fit computes anyway (a
+    second pass over a large raster costs seconds), and the model of its first round.
 
     `candidate_stable` (optional, bool) limits where stable terrain may be looked for
     (e.g. outside a user's known active area); change is excluded within it regardless.
+    `first_candidates` (optional, bool) limits it in the first round only, where that
+    leaves enough pixels: with the simple baseline's candidates and no strong-change
+    rule, that round is the baseline's own fit (difference.py), and the default learns
+    the baseline's correlation length at no cost.
     """
     options = options or ErrorModelOptions()
     valid = np.isfinite(dh) & np.isfinite(slope_deg) & np.isfinite(curvature)
@@ -290,23 +301,35 @@ def fit_error_model(
         valid &= candidate_stable
     if np.count_nonzero(valid) < options.min_bin_count:
         raise ValueError("too few valid pixels to learn the error of the difference")
+    first = valid
+    if first_candidates is not None:
+        within = valid & first_candidates
+        if np.count_nonzero(within) >= options.min_bin_count:
+            first = within
     rng = np.random.default_rng(options.seed)
     model, sigma, z, stable = _fit_table(
-        dh, slope_deg, curvature, valid, valid.copy(), pixel_size, rng, options
+        dh, slope_deg, curvature, first, first.copy(), pixel_size, rng, options
     )
     model.variogram = _fit_variogram(z, stable, pixel_size, options)
+    first_round = model
+    strong = None
     if options.strong_change_lod_ratio is not None:
         strong = _strong_change(dh, sigma, valid, model, options)
-        if strong.any():
+    # Fitted again without the strong change, or over all of `valid` where the first
+    # round looked only within `first_candidates` (a co-registration's stable mask may
+    # leave out the steep ground the table needs).
+    if (strong is not None and strong.any()) or first is not valid:
+        start = valid.copy()
+        if strong is not None and strong.any():
             buffer_px = int(
                 min(max(math.ceil(0.5 * model.correlation_length_m / pixel_size), 2), 64)
             )
-            grown = ndimage.maximum_filter(strong.view(np.uint8), size=2 * buffer_px + 1) > 0
-            model, sigma, z, stable = _fit_table(
-                dh, slope_deg, curvature, valid, valid & ~grown, pixel_size, rng, options
-            )
-            model.variogram = _fit_variogram(z, stable, pixel_size, options)
-    return model, sigma
+            start &= ~(ndimage.maximum_filter(strong.view(np.uint8), size=2 * buffer_px + 1) > 0)
+        model, sigma, z, stable = _fit_table(
+            dh, slope_deg, curvature, valid, start, pixel_size, rng, options
+        )
+        model.variogram = _fit_variogram(z, stable, pixel_size, options)
+    return ErrorModelFit(model, sigma, first_round)
 
 
 def _strong_change(
