@@ -325,6 +325,9 @@ def fit_error_model(
                 min(max(math.ceil(0.5 * model.correlation_length_m / pixel_size), 2), 64)
             )
             start &= ~(ndimage.maximum_filter(strong.view(np.uint8), size=2 * buffer_px + 1) > 0)
+        # Its samples drawn from the seed afresh: without strong change it is then the
+        # fit an unrestricted first round would have been.
+        rng = np.random.default_rng(options.seed)
         model, sigma, z, stable = _fit_table(
             dh, slope_deg, curvature, valid, start, pixel_size, rng, options
         )
