@@ -24,7 +24,10 @@ mask is not used: it excludes by one global NMAD, which would cut the tails of s
 bins and understate their error. Then regions whose |dh| averages twice their LoD
 (`strong_change_lod_ratio`) are left out whole, grown by half the correlation
 length, and the table fitted again: a slide's shallow flanks pass the pixel exclusion,
-and where change covers much of the steep ground they inflate its bins.
+and where change covers much of the steep ground they inflate its bins. The first round
+may be limited to the simple baseline's candidates (`first_candidates`): it is then the
+baseline's own fit, whose correlation length the default's minimum area is never
+below; it only finds the strong change, and the table kept is fitted over every pixel.
 """
 
 from __future__ import annotations
