@@ -273,6 +273,8 @@ def terrain_attributes(
 
 
 class ErrorModelFit(NamedTuple):
+    """What `fit_error_model` returns."""
+
     model: ErrorModel
     sigma: np.ndarray  # sigma_dh per pixel, float32
     first_round: ErrorModel  # the model of the fit's first round
