@@ -306,26 +306,28 @@ def fit_error_model(
         valid &= candidate_stable
     if np.count_nonzero(valid) < options.min_bin_count:
         raise ValueError("too few valid pixels to learn the error of the difference")
-    first = valid
+    first, limited = valid, False
     if first_candidates is not None:
         within = valid & first_candidates
         if np.count_nonzero(within) >= options.min_bin_count:
-            first = within
+            first, limited = within, True
     rng = np.random.default_rng(options.seed)
     model, sigma, z, stable = _fit_table(
         dh, slope_deg, curvature, first, first.copy(), pixel_size, rng, options
     )
     model.variogram = _fit_variogram(z, stable, pixel_size, options)
     first_round = model
-    strong = None
-    if options.strong_change_lod_ratio is not None:
-        strong = _strong_change(dh, sigma, valid, model, options)
+    strong = (
+        _strong_change(dh, sigma, valid, model, options)
+        if options.strong_change_lod_ratio is not None
+        else np.zeros(dh.shape, dtype=bool)
+    )
     # Fitted again without the strong change, or over all of `valid` where the first
     # round looked only within `first_candidates` (a co-registration's stable mask may
     # leave out the steep ground the table needs).
-    if (strong is not None and strong.any()) or first is not valid:
+    if strong.any() or limited:
         start = valid.copy()
-        if strong is not None and strong.any():
+        if strong.any():
             buffer_px = int(
                 min(max(math.ceil(0.5 * model.correlation_length_m / pixel_size), 2), 64)
             )
