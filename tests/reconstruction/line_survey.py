@@ -37,10 +37,12 @@ def line_log(
     heading_bias_deg: float = 0.0,
     attitude: bool = True,
     end_s: float = 12.9,
+    pitch_bias_deg: float = 0.0,
 ) -> FlightLog:
     """The RTK log of the flight (centimetre noise) from -1 s to `end_s`, gimbal pointing
-    down; the compass heading off by `heading_bias_deg`; without any attitude when not
-    `attitude`."""
+    down; the compass heading off by `heading_bias_deg`, the gimbal's pitch by
+    `pitch_bias_deg` (the camera truly looks straight down); without any attitude when
+    not `attitude`."""
     rng = np.random.default_rng(seed)
     t = np.round(np.arange(-1.0, end_s + 0.05, 0.1), 6)
     pos = np.column_stack([np.zeros(t.size), north(t, speed, accel), np.full(t.size, HEIGHT_M)])
@@ -56,7 +58,7 @@ def line_log(
             "lon": lon[i],
             "alt": pos[i, 2],
             "gimbal_yaw": heading_bias_deg,
-            "gimbal_pitch": -90.0,
+            "gimbal_pitch": -90.0 + pitch_bias_deg,
             "gimbal_roll": 0.0,
         }
         for i in range(t.size)
@@ -122,3 +124,25 @@ def line_map(
         point_segment=np.zeros(len(truth), np.int32),
     )
     return sparse, truth, centres
+
+
+def cut_map(sparse: SparseMap, first: int) -> np.ndarray:
+    """Cut the map (in place) as a loss of tracking at keyframe `first` cuts it: that
+    keyframe and the later ones a second segment, with points of its own (each point's
+    observations there become a new point, kept where seen three times or more, as the
+    tracker keeps them). Returns, per point of the new map, its index in the old one."""
+    n = sparse.point_id.size
+    later = sparse.obs_kf >= first
+    ids = np.where(later, sparse.obs_point + n, sparse.obs_point)
+    unique, counts = np.unique(ids, return_counts=True)
+    kept = unique[counts >= 3]
+    seen = np.isin(ids, kept)
+    sparse.kf_segment = (np.arange(sparse.kf_t.size) >= first).astype(np.int32)
+    sparse.fr_segment = sparse.kf_segment.copy()
+    sparse.obs_kf, sparse.obs_uv = sparse.obs_kf[seen], sparse.obs_uv[seen]
+    sparse.obs_point = ids[seen]
+    source = kept % n
+    sparse.point_id = kept
+    sparse.point_xyz = sparse.point_xyz[source]
+    sparse.point_segment = (kept >= n).astype(np.int32)
+    return source

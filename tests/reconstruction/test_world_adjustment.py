@@ -11,9 +11,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.reconstruction.line_survey import EPSG, ORIGIN, RTK, K, line_log, line_map
+from tests.reconstruction.line_survey import (
+    EPSG,
+    ORIGIN,
+    RTK,
+    K,
+    cut_map,
+    line_log,
+    line_map,
+)
 from worker.pipeline.georef import GeorefOptions
-from worker.pipeline.georef_map import MapGeorefOptions, georeference_map
+from worker.pipeline.georef_map import MapGeorefOptions, _drop_segment, georeference_map
 from worker.pipeline.georef_world import WorldAdjustOptions, adjust_segment
 
 SPEED = 0.5
@@ -67,6 +75,83 @@ def test_the_clock_offset_is_found_where_the_speed_changes(seed):
     # keyframes with half a pixel of noise tell (seeds 1, 2: -32 and +29 ms).
     assert abs(result.time_offset_s) < 0.05, result.time_offset_s
     assert result.adjusted_offset_s == result.time_offset_s
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_offsets_stated_error_covers_its_error(seed):
+    """Seven keyframes accelerating gently (0.4 m/s^2): the offset is weakly held, and
+    its stated error says so. (With the log's velocity taken over 0.1 s, between two
+    fixes, RTK's 2 cm noise in it stalled the offset near its start, 0.15 s, and stated
+    it to 20 ms.)"""
+    sparse, _, _ = line_map(seed, speed=0.5, accel=0.4)
+    cut_map(sparse, 7)
+    _drop_segment(sparse, 1)
+    log = line_log(seed, speed=0.5, accel=0.4, heading_bias_deg=3.0)
+    options = MapGeorefOptions(georef=GeorefOptions(position_sigma_m=RTK))
+    result = georeference_map(sparse, log, 0.15, options, hold_offset=False)
+    refinement = result.segments[0]["refinement"]
+    assert refinement["kept"]
+    assert abs(result.time_offset_s) < 2 * refinement["offset_sigma_s"] < 0.2, refinement
+
+
+def _two_segments(seed: int, alone: bool):
+    """The accelerating line cut at its eighth keyframe; `alone`: the first part left
+    out. Returns the settled offset and the second part's camera error (RMS, m)."""
+    sparse, _, centres = line_map(seed, speed=0.5, accel=0.4)
+    cut_map(sparse, 7)
+    if alone:
+        _drop_segment(sparse, 0)
+    log = line_log(seed, speed=0.5, accel=0.4, heading_bias_deg=3.0)
+    options = MapGeorefOptions(georef=GeorefOptions(position_sigma_m=RTK))
+    result = georeference_map(sparse, log, 0.15, options, hold_offset=False)
+    second = sparse.kf_segment == 1
+    error = sparse.kf_centres()[second] - ORIGIN - centres[sparse.kf_t[second].astype(int)]
+    return result, float(np.sqrt((error**2).sum(axis=1).mean()))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_segments_share_one_clock(seed):
+    """Tracking lost after seven keyframes: the second part's five keyframes say little
+    of the offset on their own (0.13-0.25 s off, their cameras 0.57-1.07 m along the
+    line on these seeds); adjusted after the first part, on the offset it settled, they
+    are placed within 0.2 m."""
+    result, error = _two_segments(seed, alone=False)
+    offsets = [s["refinement"]["offset_s"] for s in result.segments]
+    sigma = result.segments[0]["refinement"]["offset_sigma_s"]
+    assert abs(offsets[1] - offsets[0]) < sigma and result.time_offset_s == offsets[1]
+    assert abs(result.time_offset_s) < 0.1
+    assert error < 0.2
+    _, error_alone = _two_segments(seed, alone=True)
+    assert error_alone > 0.5
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_logs_attitude_bias_is_found_and_taken_out(seed):
+    """The gimbal's pitch logged 0.8 deg off and the compass 3 deg: the adjustment finds
+    both as the log's bias (world-frame rotation: east, north, up) and the map's heights
+    stay where an unbiased log puts them."""
+    heights = {}
+    for bias in (0.0, 0.8):
+        sparse, truth, _ = line_map(seed, speed=SPEED, accel=ACCEL, warp_per_m=WARP)
+        log = line_log(seed, speed=SPEED, accel=ACCEL, heading_bias_deg=3.0, pitch_bias_deg=bias)
+        options = MapGeorefOptions(georef=GeorefOptions(position_sigma_m=RTK))
+        result = georeference_map(sparse, log, 0.0, options, hold_offset=True)
+        found = result.segments[0]["refinement"]["attitude_bias_deg"]
+        assert abs(abs(found[0]) - bias) < 0.15 and abs(found[1]) < 0.1, found
+        assert abs(found[2] - 3.0) < 0.3, found
+        heights[bias] = sparse.point_xyz[:, 2] - ORIGIN[2] - truth[:, 2]
+    assert abs(np.median(heights[0.8]) - np.median(heights[0.0])) < 0.02
+
+
+def test_without_stated_accuracy_the_logged_tilt_is_taken_as_it_is():
+    """Positions of unknown accuracy (stand-alone GPS) cannot tell a bias of the logged
+    attitude from a tilt or turn of the site: none is sought."""
+    sparse, _, _ = line_map(1, speed=SPEED, accel=ACCEL, warp_per_m=WARP)
+    log = line_log(1, speed=SPEED, accel=ACCEL, heading_bias_deg=3.0, pitch_bias_deg=0.8)
+    result = georeference_map(sparse, log, 0.0, MapGeorefOptions(), hold_offset=True)
+    refinement = result.segments[0]["refinement"]
+    assert refinement["kept"]
+    assert refinement["attitude_bias_deg"] == [0.0, 0.0, 0.0]
 
 
 def test_a_straight_line_without_a_logged_attitude_is_not_adjusted():
@@ -199,7 +284,7 @@ def test_a_map_far_off_its_log_is_adjusted_again_from_the_logs_poses():
     for restart in (None, 10.0):
         sparse, truth, centres, log = _pushed_off(60.0, 30.0)
         options = WorldAdjustOptions(restart_from_log_sigmas=restart, max_iterations=3)
-        report = adjust_segment(sparse, 0, log, 0.0, EPSG, np.array(RTK), options, True)
+        report = adjust_segment(sparse, 0, log, 0.0, EPSG, np.array(RTK), options, None)
         camera_error = np.linalg.norm(sparse.kf_centres() - ORIGIN - centres, axis=1)
         heights = sparse.point_xyz[:, 2] - ORIGIN[2] - truth[:, 2]
         errors[restart] = (float(np.sqrt((camera_error**2).mean())), float(np.median(heights)))

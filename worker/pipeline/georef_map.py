@@ -99,8 +99,8 @@ class MapGeorefResult:
     warnings: list[str] = field(default_factory=list)
     # Photo sets: one row per registered photo (photo_table's, plus the segment).
     photos: list[dict[str, Any]] | None = None
-    # The offset the world-frame adjustment settled on (its longest segment's), when it
-    # ran with the offset free; None otherwise.
+    # The offset the world-frame adjustment settled on (every segment's evidence, the
+    # longest's first), when it ran with the offset free; None otherwise.
     adjusted_offset_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
@@ -143,8 +143,16 @@ def georeference_map(
     options = options or MapGeorefOptions()
     epsg = survey_epsg(log)
     accuracy = position_accuracy(log, options.georef)
-    # Adjusted segments: (keyframes, offset the adjustment settled on).
-    adjusted: dict[int, tuple[int, float]] = {}
+    # Segments the world-frame adjustment kept.
+    adjusted: set[int] = set()
+    # One clock for the whole recording: a loss of tracking does not change the offset
+    # between the video's clock and the log's, but a short segment on a straight line
+    # cannot tell a shift in time from one along the line (seed 112 of the many-flight
+    # benchmark: nine segments settled offsets up to 0.15 s apart, 1 m along their
+    # lines). The longest segment is adjusted first under the offset's loose prior; each
+    # next one takes the offset settled so far at its standard error as its prior, and
+    # what it finds refines it. [offset, sigma]; sigma None: held.
+    clock: list[Any] = [offset_s, None if hold_offset else options.world.offset_sigma_s]
     results: list[dict[str, Any]] = []
     warnings: list[str] = []
     table: list[dict[str, Any]] | None = None if photos is None else []
@@ -152,9 +160,10 @@ def georeference_map(
     def place(segment: int, several: bool) -> dict[str, Any] | None:
         """Fit and adjust one segment; its entry, or None where it was left out."""
         traj = sparse.trajectory(segment)
+        segment_offset = offset_s if photos is not None else float(clock[0])
         try:
             if photos is None:
-                fit = georeference(traj, log, offset_s, options.georef)
+                fit = georeference(traj, log, segment_offset, options.georef)
             else:
                 names = photo_names_at(traj.t, photos)
                 fit = georeference_photos(traj, names, log, offset_s, options.georef)
@@ -169,7 +178,6 @@ def georeference_map(
         entry = {"segment": segment, "frames": len(traj), "fit": fit.to_dict()}
         # The outlier photos' GPS positions must not pull the adjustment either.
         excluded = _outlier_times(fit, traj.t, photos)
-        segment_offset = offset_s
         if fit.similarity is not None:
             s = fit.similarity
             sparse.transform(s.scale, s.rotation, s.translation, segment)
@@ -181,18 +189,22 @@ def georeference_map(
                     sparse,
                     segment,
                     log,
-                    offset_s,
+                    segment_offset,
                     epsg,
                     sigma,
                     options.world,
-                    hold_offset=hold_offset,
+                    offset_sigma_s=clock[1],
                     straight=fit.straightness < options.refine_min_straightness,
                     drift=fit.gnss_drift,
-                    frames_on_log=accuracy is not None,
+                    stated_accuracy=accuracy is not None,
                 )
                 segment_offset = entry["refinement"]["offset_s"]
                 if entry["refinement"].get("kept"):
-                    adjusted[segment] = (int((sparse.kf_segment == segment).sum()), segment_offset)
+                    adjusted.add(segment)
+                    sigma_s = entry["refinement"].get("offset_sigma_s")
+                    if clock[1] is not None and sigma_s is not None:
+                        floor = options.world.min_offset_sigma_s
+                        clock[:] = [segment_offset, max(float(sigma_s), floor)]
             elif options.refine and fit.straightness < options.refine_min_straightness:
                 entry["refinement"] = {
                     "skipped": f"a near-straight track (straightness {fit.straightness:.3f}): "
@@ -220,9 +232,12 @@ def georeference_map(
         return entry
 
     several = len(sparse.segments) > 1
-    for segment in sparse.segments:
+    # The longest segment first: it settles the clock best.
+    frames = {s: int((sparse.fr_segment == s).sum()) for s in sparse.segments}
+    for segment in sorted(sparse.segments, key=lambda s: (-frames[s], s)):
         if (entry := place(segment, several)) is not None:
             results.append(entry)
+    results.sort(key=lambda e: e["segment"])
     if photos is None and options.scale_breaks.enabled and results:
         # Breaks are looked for once the segments are placed and adjusted: with RTK the
         # adjustment mends the scale jumps it can see, and only what it could not mend
@@ -243,8 +258,7 @@ def georeference_map(
             _drop_segment(sparse, piece.segment)
         if cuts.cut:
             results = [e for e in results if e["segment"] not in cuts.cut]
-            for segment in cuts.cut:
-                adjusted.pop(segment, None)
+            adjusted.difference_update(cuts.cut)
             several = len(sparse.segments) > 1
             for segment in cuts.kept:
                 if (entry := place(segment, several)) is not None:
@@ -258,7 +272,7 @@ def georeference_map(
         results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
         if dropped:
             sparse.update_frames_from_keyframes()
-    settled = max(adjusted.values())[1] if adjusted and not hold_offset else None
+    settled = float(clock[0]) if adjusted and not hold_offset else None
     return MapGeorefResult(
         crs=f"EPSG:{epsg}",
         segments=results,

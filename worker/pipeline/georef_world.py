@@ -5,7 +5,9 @@ line) is what remains, and the positions can remove it. `adjust_segment` runs
 `world_bundle_adjust` on the segment's keyframes and points in UTM with a prior on every
 keyframe's centre (at the log's stated sigmas, RTK; else at the spread of the fit's
 residuals, the fitted GNSS drift removed from the positions), on its rotation from the
-logged camera attitude, and on the offset between the video's clock and the log's, then
+logged camera attitude (less one bias of the log's over the segment, found with it), and
+on the offset between the video's clock and the log's (its standard error reported, for
+the segments placed after this one: georef_map), then
 writes the adjusted poses and points back (dense points follow their keyframes'
 depths). Nothing of the adjustment is undone: the positions and the attitude fix every
 degree of freedom, the roll of a straight line included (which positions alone cannot:
@@ -38,17 +40,46 @@ from worker.pipeline.slam.world_bundle import WorldBAProblem, WorldBAResult, wor
 
 @dataclass
 class WorldAdjustOptions:
-    tilt_sigma_deg: float = 1.0  # the logged camera tilt (IMU-levelled gimbal)
-    heading_sigma_deg: float = 5.0  # the compass: biased by degrees
+    # The logged camera attitude keyframe to keyframe, its bias taken out (world_bundle):
+    # an IMU-levelled gimbal's tilt, logged to 0.1 deg at 10 Hz and read between
+    # samples; the compass's heading.
+    tilt_sigma_deg: float = 0.3
+    heading_sigma_deg: float = 2.0
+    # The bias of the whole segment's logged attitude: the level's error and a camera
+    # mounted askew (tenths of a degree), the compass's (degrees).
+    tilt_bias_sigma_deg: float = 0.5
+    heading_bias_sigma_deg: float = 5.0
+    # Without stated accuracy (stand-alone GPS) the positions' metres cannot tell a bias
+    # of the logged attitude from a tilt or turn of the site, so the log's attitude is
+    # taken as it is, keyframe by keyframe at these sigmas, and no bias is sought (with a
+    # heading bias sought, two of twelve mounds flights' DSMs turned: 0.61 -> 0.95 and
+    # 0.89 -> 1.18 px after shift and tilt). Nor is the tilt held as tightly: the offset
+    # is settled to tens of milliseconds there, and in the turns and climbs of the
+    # paper's 3-D path the log read that far off turned two of five flights' maps at 0.3
+    # deg (seeds 101 and 123: their cameras 0.17 -> 0.54 and 0.16 -> 0.46 m RMS off
+    # their track's shape).
+    standalone_tilt_sigma_deg: float = 1.0
+    standalone_heading_sigma_deg: float = 5.0
     # The offset's prior around the estimate in use: loose, the data decides where the
-    # flight's speed changes (measured: the same offset with 0.1, 0.3 and 1 s).
+    # flight's speed changes (measured: the same offset with 0.1, 0.3 and 1 s). Segments
+    # after the first take the offset the ones before settled, at its standard error
+    # (georef_map): one clock for the whole recording.
     offset_sigma_s: float = 0.5
+    # The least standard error a settled offset is taken at for the segments after it:
+    # a sixth of a frame at 30 fps (a formal error below it trusts the log's interpolation
+    # between samples too far).
+    min_offset_sigma_s: float = 0.005
     max_iterations: int = 15
     # The adjusted map must still fit its images: a reprojection RMS above both this
     # and twice the one before means the positions and the map disagree (a broken
     # segment), reported and not kept.
     max_reprojection_rms_px: float = 2.0
-    velocity_step_s: float = 0.05
+    # The log's velocity (the offset's derivative) by a central difference this far
+    # either side: at 0.05 s, between two 10-Hz fixes, RTK's 2 cm made it 0.3 m/s of
+    # noise, which stalled the offset where it began and claimed it to 20 ms where it was
+    # 150 ms off (a 7-keyframe line accelerating at 0.4 m/s^2; at 0.25 s: within 50 ms,
+    # its stated error 55-90 ms).
+    velocity_step_s: float = 0.25
     # Observations in the problem at most (about 0.25 s per iteration at 60 000 on two
     # cores): a long flight's points beyond it, drawn at random (seeded), ride with the
     # keyframe that first saw them.
@@ -70,15 +101,18 @@ def adjust_segment(
     epsg: int,
     sigma_m: np.ndarray,
     options: WorldAdjustOptions,
-    hold_offset: bool = False,
+    offset_sigma_s: float | None = None,
     straight: bool = False,
     drift: GnssDrift | None = None,
-    frames_on_log: bool = True,
+    stated_accuracy: bool = True,
 ) -> dict[str, Any]:
     """Adjust one segment of `sparse` (in place, in UTM) against the log; returns the
-    report kept in georeference.json (with `offset_s`, the offset the segment uses).
-    `frames_on_log`: put the frames between keyframes on the log's positions (where
-    those are better than the tracking between keyframes: RTK)."""
+    report kept in georeference.json (with `offset_s`, the offset the segment uses, and
+    `offset_sigma_s`, its standard error). `offset_sigma_s`: the prior's sigma about
+    `offset_s` (None: the offset is held).
+    `stated_accuracy`: the log states its positions' accuracy (RTK): the frames between
+    keyframes are put on its positions (better there than the tracking between
+    keyframes), and the bias of its tilt is sought (see WorldAdjustOptions)."""
     kf = np.flatnonzero(sparse.kf_segment == segment)
     times = sparse.kf_t[kf]
     attitude, source = camera_attitude_at(log, times + offset_s)
@@ -126,10 +160,9 @@ def adjust_segment(
         position_sigma_m=np.asarray(sigma_m, dtype=np.float64),
         offset_s=offset_s,
         offset_prior_s=offset_s,
-        offset_sigma_s=None if hold_offset else options.offset_sigma_s,
+        offset_sigma_s=offset_sigma_s,
         attitude_r_wc=attitude,
-        tilt_sigma_deg=options.tilt_sigma_deg,
-        heading_sigma_deg=options.heading_sigma_deg,
+        **_attitude_sigmas(options, stated_accuracy),
     )
     # Work about the segment's centre: UTM coordinates are too large for a well-scaled
     # problem.
@@ -166,7 +199,7 @@ def adjust_segment(
     if not report["final_cost"] < report["initial_cost"]:
         report["kept"] = False
         report["reason"] = "no step of the adjustment lowered its cost: the segment keeps its fit"
-        report["offset_s"] = offset_s
+        report["offset_s"], report["offset_sigma_s"] = offset_s, None
         return report
     before = report["reprojection_rms_px_before"]
     after = report["reprojection_rms_px_after"]
@@ -176,7 +209,7 @@ def adjust_segment(
             f"the adjusted map no longer fits its images ({after:.2f} px RMS against "
             f"{before:.2f} px before): the positions and the reconstruction disagree"
         )
-        report["offset_s"] = offset_s
+        report["offset_s"], report["offset_sigma_s"] = offset_s, None
         return report
     others = _hosted_points(sparse, segment, pt_sel)
     r_before, c_before = sparse.kf_r.copy(), sparse.kf_centres()
@@ -201,10 +234,28 @@ def adjust_segment(
         sparse.point_xyz[pts] = moved
         report["points_triangulated_again"] = int((~ride).sum())
     report["points_outside_the_problem"] = int(others[0].size)
-    if frames_on_log:
+    if stated_accuracy:
         report["frames_on_log"] = _frames_on_log(sparse, segment, log, result.offset_s, epsg, drift)
     report["kept"] = True
     return report
+
+
+def _attitude_sigmas(options: WorldAdjustOptions, stated_accuracy: bool) -> dict[str, float]:
+    """The attitude priors' sigmas for WorldBAProblem: with stated accuracy, keyframe to
+    keyframe and the bias; without, keyframe by keyframe and no bias."""
+    if stated_accuracy:
+        return {
+            "tilt_sigma_deg": options.tilt_sigma_deg,
+            "heading_sigma_deg": options.heading_sigma_deg,
+            "tilt_bias_sigma_deg": options.tilt_bias_sigma_deg,
+            "heading_bias_sigma_deg": options.heading_bias_sigma_deg,
+        }
+    return {
+        "tilt_sigma_deg": options.standalone_tilt_sigma_deg,
+        "heading_sigma_deg": options.standalone_heading_sigma_deg,
+        "tilt_bias_sigma_deg": 0.0,
+        "heading_bias_sigma_deg": 0.0,
+    }
 
 
 def _restart_from_log(

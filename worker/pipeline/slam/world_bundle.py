@@ -11,7 +11,13 @@ than anything the images can say about where the cameras were, and the logged ti
 - camera centre minus the log's position at the keyframe's time plus the offset, over
   the stated sigmas (Cauchy-robust at a few sigmas: a bad fix does not bend the map);
 - the camera's rotation against the logged attitude, tilt and heading separately
-  (the compass's heading is far poorer than the levelled tilt);
+  (the compass's heading is far poorer than the levelled tilt), less one bias of the
+  log's attitude over the segment (a world-frame rotation, itself under a looser
+  prior): a level or compass error, or a camera mounted askew, turns every logged
+  attitude alike. Keyframe to keyframe the log is good to a few tenths of a degree, and
+  the relative rotations of a pair are what set its heights (a pitch 0.5 deg off between
+  two cameras 0.5 m apart puts points 5.6 m below them 0.3 m too high); a prior as loose
+  as the bias on every keyframe let a texture-poor segment's map bend by that much;
 - the offset against its prior (the log's recording span): on a straight line flown
   at constant speed the images cannot tell a shift in time from a shift along the
   line, so there the prior holds it; turns and speed changes make the data decide.
@@ -27,7 +33,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -54,8 +60,12 @@ class WorldBAProblem:
     offset_prior_s: float
     offset_sigma_s: float | None  # None: the offset is held
     attitude_r_wc: np.ndarray | None = None  # (K, 3, 3) logged camera-to-world
-    tilt_sigma_deg: float = 1.0
-    heading_sigma_deg: float = 5.0
+    # Each keyframe's attitude against the log's, once the bias is taken out.
+    tilt_sigma_deg: float = 0.3
+    heading_sigma_deg: float = 2.0
+    # The bias (one world-frame rotation per problem) against zero.
+    tilt_bias_sigma_deg: float = 0.5  # 0: no tilt bias sought
+    heading_bias_sigma_deg: float = 5.0  # 0: no heading bias sought
     pixel_sigma: float = 1.0
     reprojection_scale_px: float = 2.0  # Cauchy scale of the reprojection residuals
     prior_scale: float = 3.0  # Cauchy scale of the position residuals, in sigmas
@@ -68,6 +78,11 @@ class WorldBAResult:
     points: np.ndarray
     offset_s: float
     report: dict[str, Any]
+    # The log's attitude bias found (world-frame rotation vector, radians; zeros without
+    # a logged attitude).
+    attitude_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # The offset's standard error (None: held).
+    offset_sigma_s: float | None = None
 
 
 def _hat(v: np.ndarray) -> np.ndarray:
@@ -95,7 +110,7 @@ def _cauchy_cost(r2: np.ndarray, scale: float) -> float:
 class _Terms:
     """Residuals, robust weights and Jacobian blocks at one state."""
 
-    def __init__(self, pb: WorldBAProblem, r_cw, centres, points, offset):
+    def __init__(self, pb: WorldBAProblem, r_cw, centres, points, offset, bias):
         k = pb.k
         d = points[pb.obs_point] - centres[pb.obs_kf]  # (M, 3) world
         r = r_cw[pb.obs_kf]
@@ -131,15 +146,22 @@ class _Terms:
         r2p = (self.res_pos**2).sum(1)
         self.w_pos = np.where(self.has_pos, _cauchy_weights(r2p, pb.prior_scale), 0.0)
         self.cost += _cauchy_cost(r2p[self.has_pos], pb.prior_scale)
-        # Attitude: world-frame rotation error of camera-to-world, weighted in ENU.
+        # Attitude: world-frame rotation error of camera-to-world less the log's bias,
+        # weighted in ENU; the bias against zero.
         if pb.attitude_r_wc is not None:
             r_wc = np.transpose(r_cw, (0, 2, 1))
             rel = r_wc @ np.transpose(pb.attitude_r_wc, (0, 2, 1))
-            self.res_att = Rotation.from_matrix(rel).as_rotvec()
             sig_att = np.deg2rad([pb.tilt_sigma_deg, pb.tilt_sigma_deg, pb.heading_sigma_deg])
-            self.res_att = self.res_att / sig_att
+            self.res_att = (Rotation.from_matrix(rel).as_rotvec() - bias) / sig_att
             self.att_sigma = sig_att
-            self.cost += 0.5 * float((self.res_att**2).sum())
+            sigma = np.deg2rad(
+                [pb.tilt_bias_sigma_deg, pb.tilt_bias_sigma_deg, pb.heading_bias_sigma_deg]
+            )
+            # A sigma of 0: that bias is not sought (held at zero).
+            self.bias_held = sigma <= 0
+            self.bias_sigma = np.where(self.bias_held, 1.0, sigma)
+            self.res_bias = np.where(self.bias_held, 0.0, bias / self.bias_sigma)
+            self.cost += 0.5 * float((self.res_att**2).sum() + (self.res_bias**2).sum())
         else:
             self.res_att = None
         if pb.offset_sigma_s is not None:
@@ -157,10 +179,18 @@ def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out.reshape((n, *shape))
 
 
+# The camera system's unknowns after the keyframes' six each: the clock offset, then the
+# attitude bias's three.
+_EXTRA = 4
+
+
 def _normal_equations(pb: WorldBAProblem, t: _Terms, n_kf: int, n_pt: int):
-    """H and g of the weighted Gauss-Newton system: the camera block (6 per keyframe and
-    the offset), the point blocks (P, 3, 3), the coupling (sparse) and the gradients."""
-    nc = 6 * n_kf + 1
+    """H and g of the weighted Gauss-Newton system: the camera block (6 per keyframe, the
+    offset and the attitude bias), the point blocks (P, 3, 3), the coupling (sparse) and
+    the gradients."""
+    nc = 6 * n_kf + _EXTRA
+    off = 6 * n_kf
+    bias = off + 1 + np.arange(3)
     w = t.w_px[:, None, None]
     jc = np.concatenate([t.j_rot, t.j_ctr], axis=2)  # (M, 2, 6)
     jp = t.j_pt
@@ -182,19 +212,27 @@ def _normal_equations(pb: WorldBAProblem, t: _Terms, n_kf: int, n_pt: int):
     inv_s2 = 1.0 / t.pos_sigma**2
     H[cidx, cidx] += wp * inv_s2
     g[cidx] += wp * t.res_pos / t.pos_sigma
-    H[cidx, nc - 1] += wp * t.j_pos_offset / t.pos_sigma
-    H[nc - 1, cidx] += wp * t.j_pos_offset / t.pos_sigma
-    H[nc - 1, nc - 1] += float((wp * t.j_pos_offset**2).sum())
-    g[nc - 1] += float((wp * t.j_pos_offset * t.res_pos).sum())
+    H[cidx, off] += wp * t.j_pos_offset / t.pos_sigma
+    H[off, cidx] += wp * t.j_pos_offset / t.pos_sigma
+    H[off, off] += float((wp * t.j_pos_offset**2).sum())
+    g[off] += float((wp * t.j_pos_offset * t.res_pos).sum())
     if t.res_att is not None:
+        # d res_att / d rotation = I / sigma, d res_att / d bias = -I / sigma.
         ridx = 6 * np.arange(n_kf)[:, None] + np.arange(3)
-        H[ridx, ridx] += 1.0 / t.att_sigma**2
+        inv_a2 = 1.0 / t.att_sigma**2
+        H[ridx, ridx] += inv_a2
+        H[ridx, bias] -= inv_a2
+        H[bias, ridx] -= inv_a2
+        H[bias, bias] += n_kf * inv_a2 + np.where(t.bias_held, 1e12, 1.0 / t.bias_sigma**2)
         g[ridx] += t.res_att / t.att_sigma
-    if pb.offset_sigma_s is not None:
-        H[nc - 1, nc - 1] += 1.0 / pb.offset_sigma_s**2
-        g[nc - 1] += t.res_off / pb.offset_sigma_s
+        g[bias] += -(t.res_att / t.att_sigma).sum(axis=0) + t.res_bias / t.bias_sigma
     else:
-        H[nc - 1, nc - 1] += 1e12  # held
+        H[bias, bias] += 1e12  # no attitude: no bias
+    if pb.offset_sigma_s is not None:
+        H[off, off] += 1.0 / pb.offset_sigma_s**2
+        g[off] += t.res_off / pb.offset_sigma_s
+    else:
+        H[off, off] += 1e12  # held
     rows = (6 * pb.obs_kf[:, None, None] + np.arange(6)[None, :, None]).repeat(3, 2)
     cols = (3 * pb.obs_point[:, None, None] + np.arange(3)[None, None, :]).repeat(6, 1)
     hcp = sp.csr_matrix(
@@ -203,8 +241,9 @@ def _normal_equations(pb: WorldBAProblem, t: _Terms, n_kf: int, n_pt: int):
     return H, g, hpp, gp.reshape(-1), hcp
 
 
-def _solve(H, g, hpp, gp, hcp, lam: float):
-    """One damped step (Marquardt) by the Schur complement on the points."""
+def _reduced(H, hpp, hcp, lam: float):
+    """The reduced camera system S (the points eliminated by their Schur complement),
+    damped by `lam` (Marquardt), and the points' inverted blocks times the coupling."""
     n_pt = len(hpp)
     hpp_d = hpp + (lam * np.einsum("nii->ni", hpp) + 1e-9)[:, :, None] * np.eye(3)
     hpp_inv = np.linalg.inv(hpp_d)
@@ -218,7 +257,12 @@ def _solve(H, g, hpp, gp, hcp, lam: float):
     # overlap it): a sparse factorisation, not a dense Cholesky (1.2 s for 250
     # keyframes on two loaded cores).
     damped = sp.csr_matrix(H + np.diag(lam * np.diag(H) + 1e-9))
-    S = (damped - hcp_w @ hcp.T).tocsc()
+    return (damped - hcp_w @ hcp.T).tocsc(), winv, hcp_w
+
+
+def _solve(H, g, hpp, gp, hcp, lam: float):
+    """One damped step (Marquardt) by the Schur complement on the points."""
+    S, winv, hcp_w = _reduced(H, hpp, hcp, lam)
     rhs = -g + hcp_w @ gp
     # A singular system (a step too little damped) is answered by more damping, so
     # SciPy's warning about it is not passed on to the job's log.
@@ -245,7 +289,8 @@ def world_bundle_adjust(
     n_kf, n_pt = len(pb.centres), len(pb.points)
     r_cw, centres, points = pb.r_cw.copy(), pb.centres.copy(), pb.points.copy()
     offset = float(pb.offset_s)
-    terms = _Terms(pb, r_cw, centres, points, offset)
+    bias = np.zeros(3)
+    terms = _Terms(pb, r_cw, centres, points, offset, bias)
     initial = terms.cost
     initial_px = _reprojection_rms(terms)
     lam, iterations = 1e-4, 0
@@ -263,8 +308,9 @@ def world_bundle_adjust(
             new_r = r_cw @ np.transpose(Rotation.from_rotvec(step[:, :3]).as_matrix(), (0, 2, 1))
             new_c = centres + step[:, 3:]
             new_p = points + dp.reshape(n_pt, 3)
-            new_off = offset + (dc[-1] if pb.offset_sigma_s is not None else 0.0)
-            trial = _Terms(pb, new_r, new_c, new_p, new_off)
+            new_off = offset + (dc[6 * n_kf] if pb.offset_sigma_s is not None else 0.0)
+            new_bias = bias + (dc[6 * n_kf + 1 :] if pb.attitude_r_wc is not None else 0.0)
+            trial = _Terms(pb, new_r, new_c, new_p, new_off, new_bias)
             if trial.cost < terms.cost:
                 improved = True
                 break
@@ -272,12 +318,13 @@ def world_bundle_adjust(
         if not improved:
             break
         gain = (terms.cost - trial.cost) / max(terms.cost, 1e-12)
-        r_cw, centres, points, offset, terms = new_r, new_c, new_p, new_off, trial
+        r_cw, centres, points, offset, bias, terms = new_r, new_c, new_p, new_off, new_bias, trial
         lam = max(lam / 10, 1e-7)
         if gain < tolerance:
             break
     pos, _ = pb.positions_at(offset)
     has = np.isfinite(pos).all(1)
+    offset_sigma = _offset_sigma(pb, terms, n_kf, n_pt)
     report = {
         "keyframes": n_kf,
         "points": n_pt,
@@ -292,9 +339,31 @@ def world_bundle_adjust(
         else None,
         "offset_s": round(offset, 4),
         "offset_change_s": round(offset - pb.offset_s, 4),
+        "offset_sigma_s": None if offset_sigma is None else round(offset_sigma, 5),
         "seconds": round(time.perf_counter() - start, 3),
     }
-    return WorldBAResult(r_cw, centres, points, offset, report)
+    if pb.attitude_r_wc is not None:
+        report["attitude_bias_deg"] = [round(float(v), 3) for v in np.degrees(bias)]
+    return WorldBAResult(r_cw, centres, points, offset, report, bias, offset_sigma)
+
+
+def _offset_sigma(pb: WorldBAProblem, t: _Terms, n_kf: int, n_pt: int) -> float | None:
+    """The offset's standard error at the solution (its prior included), from the
+    reduced camera system's inverse: what a segment adjusted next may take as its prior.
+    None where the offset is held or the system is singular."""
+    if pb.offset_sigma_s is None:
+        return None
+    H, _, hpp, _, hcp = _normal_equations(pb, t, n_kf, n_pt)
+    S, _, _ = _reduced(H, hpp, hcp, 0.0)
+    unit = np.zeros(S.shape[0])
+    unit[6 * n_kf] = 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", spla.MatrixRankWarning)
+        try:
+            variance = float(spla.spsolve(S, unit)[6 * n_kf])
+        except spla.MatrixRankWarning:
+            return None
+    return float(np.sqrt(variance)) if np.isfinite(variance) and variance > 0 else None
 
 
 def _reprojection_rms(t: _Terms) -> float:
