@@ -96,7 +96,7 @@ def test_the_offsets_stated_error_covers_its_error(seed):
 
 def _two_segments(seed: int, alone: bool):
     """The accelerating line cut at its eighth keyframe; `alone`: the first part left
-    out. Returns the settled offset and the second part's camera error (RMS, m)."""
+    out. Returns the georeference's result and the second part's camera error (RMS, m)."""
     sparse, _, centres = line_map(seed, speed=0.5, accel=0.4)
     cut_map(sparse, 7)
     if alone:
