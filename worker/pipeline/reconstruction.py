@@ -103,6 +103,7 @@ from worker.pipeline.orthophoto import (
     video_view_images,
     write_orthophoto,
 )
+from worker.pipeline.pair_adjustment import PairAdjustOptions, apply_planes, pair_planes
 from worker.pipeline.pointcloud import (
     compact_rows,
     grid_outliers,
@@ -192,6 +193,8 @@ class ReconstructionOptions:
     # slam: dense pairs matched again where the georeference moved their cameras
     redensify: RedensifyOptions = field(default_factory=RedensifyOptions)
     dsm: DsmOptions = field(default_factory=DsmOptions)
+    # dense pairs' heights made to agree, one plane per pair (dsm stage)
+    pair_adjustment: PairAdjustOptions = field(default_factory=PairAdjustOptions)
     orthophoto: OrthophotoOptions = field(default_factory=OrthophotoOptions)
     sparse_sor: bool = True  # open3d statistical outlier removal on the sparse cloud
     dense_sor: bool = False  # the same on the dense cloud (slow: 20 s per 2M points)
@@ -751,12 +754,20 @@ def dsm(
             n = compact_rows(cloud, keep)
             pair_kf, pair_partner = pair_kf[keep], pair_partner[keep]
             del keep
-        # Before the outlier filters, on the points the DSM is made of: compaction keeps
-        # the pairs' order (see height_agreement).
+        # Before the outlier filters and the pairs' planes, on the points the DSM is made
+        # of (compaction keeps the pairs' order, see height_agreement): the check it
+        # feeds was measured against the truth so (a lower bound of the DSM's error,
+        # which the planes bring down).
         agreement = pair_agreement(cloud[:n], pair_kf, pair_partner, resolution)
-        del pair_kf, pair_partner
         if agreement is not None:
             out["height_agreement"] = agreement
+        if options.pair_adjustment.enabled:
+            pair = pair_kf.astype(np.int64) * (int(pair_partner.max()) + 1) + pair_partner
+            planes = pair_planes(cloud[:n], pair, resolution, options.pair_adjustment)
+            apply_planes(cloud[:n], pair, planes)
+            del pair
+            out["pair_adjustment"] = planes.to_dict()
+        del pair_kf, pair_partner
         if options.dense_sor:
             keep = statistical_outliers(cloud[:n])
             out["dense_sor_removed"] = int((~keep).sum())

@@ -155,6 +155,9 @@ class DsmStageResult(ReconstructionStageResult):
     overlap_coverage: float | None = field(default=None, metadata=_OPTIONAL)
     # with dense points: how well independent pairs' heights agree (height_agreement)
     height_agreement: dict[str, Any] | None = field(default=None, metadata=_OPTIONAL)
+    # with dense points: the planes taken out of the pairs' heights so that they agree
+    # (pair_adjustment.PairPlanes)
+    pair_adjustment: dict[str, Any] | None = field(default=None, metadata=_OPTIONAL)
     seconds: float
 
 
