@@ -13,6 +13,15 @@ import numpy as np
 NMAD_FACTOR = 1.4826  # the NMAD of a normal distribution is its sigma
 
 
+def run_starts(sorted_values: np.ndarray) -> np.ndarray:
+    """True where a run of equal values begins in a sorted array."""
+    start = np.empty(sorted_values.size, dtype=bool)
+    if sorted_values.size:
+        start[0] = True
+        np.not_equal(sorted_values[1:], sorted_values[:-1], out=start[1:])
+    return start
+
+
 def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """The bin of each value (edges ascending; the last edge closes the last bin, as in
     numpy's and scipy's histograms); -1 outside the edges or NaN."""

@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from worker.pipeline.binned import run_starts
+
 
 def pair_agreement(
     points: np.ndarray,
@@ -55,7 +57,7 @@ def pair_agreement(
     key = cell * n_pairs + pair.ravel()
     order = np.argsort(key)
     key = key[order]
-    new_key = _starts(key)
+    new_key = run_starts(key)
     group = np.cumsum(new_key) - 1
     mean = np.bincount(group, weights=points[order, 2]) / np.bincount(group)
     keys = key[new_key]
@@ -63,7 +65,7 @@ def pair_agreement(
     first_kf = pair_codes[keys % n_pairs] // partners
     # Keys sort by cell, then by pair (by its first keyframe): a cell's first and last
     # keys are its earliest and latest pairs.
-    first = np.flatnonzero(_starts(key_cell))
+    first = np.flatnonzero(run_starts(key_cell))
     last = np.append(first[1:], keys.size) - 1
     apart = np.abs(first_kf[last] - first_kf[first]) >= min_gap
     if apart.sum() < 100:
@@ -75,12 +77,3 @@ def pair_agreement(
         "cells": int(apart.sum()),
         "points_used": len(points),
     }
-
-
-def _starts(sorted_values: np.ndarray) -> np.ndarray:
-    """True where a run of equal values begins in a sorted array."""
-    start = np.empty(sorted_values.size, dtype=bool)
-    if sorted_values.size:
-        start[0] = True
-        np.not_equal(sorted_values[1:], sorted_values[:-1], out=start[1:])
-    return start

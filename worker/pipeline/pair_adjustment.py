@@ -43,7 +43,7 @@ import scipy.linalg
 from scipy import sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from worker.pipeline.binned import NMAD_FACTOR
+from worker.pipeline.binned import NMAD_FACTOR, run_starts
 
 _HUBER_K = 1.345  # Huber's constant: 95 % efficiency on normal errors
 
@@ -252,23 +252,14 @@ def _shared_cells(xyz: np.ndarray, pair: np.ndarray, pairs: int, cell_m: float) 
     key = _cell_ids(xyz, cell_m) * pairs + pair
     order = np.argsort(key)
     key = key[order]
-    new_cell = _starts(key // pairs)
+    new_cell = run_starts(key // pairs)
     cell_sorted = np.cumsum(new_cell) - 1
-    distinct_pairs = np.bincount(cell_sorted[_starts(key)])
+    distinct_pairs = np.bincount(cell_sorted[run_starts(key)])
     shared = distinct_pairs >= 2
     compact = np.where(shared, np.cumsum(shared) - 1, -1)
     cell = np.empty(key.size, np.int64)
     cell[order] = compact[cell_sorted]
     return cell
-
-
-def _starts(sorted_values: np.ndarray) -> np.ndarray:
-    """True where a run of equal values begins in a sorted array."""
-    start = np.empty(sorted_values.size, dtype=bool)
-    if sorted_values.size:
-        start[0] = True
-        np.not_equal(sorted_values[1:], sorted_values[:-1], out=start[1:])
-    return start
 
 
 def _blocks(xyz: np.ndarray, block_m: float) -> np.ndarray:
