@@ -761,7 +761,7 @@ def dsm(
         agreement = pair_agreement(cloud[:n], pair_kf, pair_partner, resolution)
         if agreement is not None:
             out["height_agreement"] = agreement
-        if options.pair_adjustment.enabled:
+        if options.pair_adjustment.enabled and n:
             pair = pair_kf.astype(np.int64) * (int(pair_partner.max()) + 1) + pair_partner
             planes = pair_planes(cloud[:n], pair, resolution, options.pair_adjustment)
             apply_planes(cloud[:n], pair, planes)
