@@ -92,7 +92,11 @@ def test_a_pair_metres_off_is_moved_onto_the_others():
 
 def test_one_pair_and_pairs_that_never_overlap_are_left_as_they_are():
     points, pair, _ = _pairs(3, count=1)
-    assert not pair_planes(points, pair, 0.05).tied.any()
+    planes = pair_planes(points, pair, 0.05)
+    assert not planes.tied.any()
+    z = points[:, 2].copy()
+    apply_planes(points, pair, planes)
+    np.testing.assert_array_equal(points[:, 2], z)
     # Two pairs 20 m apart share no cell.
     a, pa, _ = _pairs(4, count=1)
     b, pb, _ = _pairs(5, count=1)

@@ -141,6 +141,7 @@ def pair_planes(
         labels=labels,
         planes=np.zeros((labels.size, 3)),
         centres=np.zeros((labels.size, 2)),
+        reach=np.zeros((labels.size, 2)),
         tied=np.zeros(labels.size, bool),
     )
     if labels.size < 2:
@@ -176,7 +177,7 @@ def pair_planes(
     weights = np.empty(0)
     before = after = None
     for _ in range(max(1, options.rounds)):
-        # The ground as the pairs corrected so far see it, each cell's mean; each point's
+        # The ground as the pairs corrected so far see it, each cell's median; each point's
         # height above it (less no plane: the planes are solved for whole each round).
         corrected = xyz[:, 2] - _plane_heights(planes[index], relative)
         ground = _cell_median(corrected, cell)
