@@ -188,8 +188,7 @@ def pair_planes(
         # pair metres off (a wrong match the grid filter used to drop, a part of the
         # flight placed apart) is moved onto the others, not the others towards it.
         far = _far_off(planes, structure)
-        table.keep_plane = keep_plane * ~far[:, None, None]
-        structure = _structure(table, labels.size, windows, far)
+        structure = _structure(table, keep_plane * ~far[:, None, None], windows, far)
         if weights.size != table.height.size:
             weights = np.ones(table.height.size)
         planes, weights = _solve(table, structure, weights, options)
@@ -242,9 +241,6 @@ class _Table:
     x: np.ndarray  # the block's centre relative to its pair's
     y: np.ndarray
     blocks: int
-    # Per pair, the 3 x 3 map from its plane to its share of the plane that best fits the
-    # corrections over all points (see _keep_plane_rows).
-    keep_plane: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
 
 
 def _shared_cells(xyz: np.ndarray, pair: np.ndarray, pairs: int, cell_m: float) -> np.ndarray:
@@ -405,8 +401,15 @@ def _window_rows(
 
 
 def _structure(
-    table: _Table, pairs: int, windows: _Windows | None = None, far: np.ndarray | None = None
+    table: _Table,
+    keep_plane: np.ndarray,
+    windows: _Windows | None = None,
+    far: np.ndarray | None = None,
 ) -> _Structure:
+    """`keep_plane`: per pair, the 3 x 3 map from its plane to its share of the plane
+    that best fits the corrections over all points (_keep_plane_rows), zero for pairs
+    left out of the survey's sums."""
+    pairs = keep_plane.shape[0]
     m = table.height.size
     graph = sp.csr_matrix((np.ones(m), (table.pair, table.block)), shape=(pairs, table.blocks))
     tied = np.asarray(graph.getnnz(axis=1) > 0).ravel()
@@ -418,7 +421,7 @@ def _structure(
     border = np.zeros((len(kept) * groups.size, 3 * pairs))
     for g_index, g in enumerate(groups):
         members = np.flatnonzero((group == g) & tied)
-        rows = table.keep_plane[members][:, kept]  # (members, constraints, 3 plane terms)
+        rows = keep_plane[members][:, kept]  # (members, constraints, 3 plane terms)
         scale = np.maximum(np.abs(rows).sum(axis=(0, 2)), 1e-12)
         at = slice(len(kept) * g_index, len(kept) * (g_index + 1))
         for j in range(3):
