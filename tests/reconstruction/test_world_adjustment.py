@@ -258,6 +258,34 @@ def test_a_singular_step_is_damped_more_without_a_warning_in_the_log(monkeypatch
     assert not seen
 
 
+def test_a_point_seen_along_one_ray_leaves_the_offset_without_a_sigma_not_a_failure(
+    monkeypatch,
+):
+    """Undamped, the Schur complement inverts each point's 3 x 3 block; a point seen
+    along one ray only (seed 101 of the many-flight benchmark, RTK: one block of 4e7
+    with rank 2) made NumPy raise and the whole flight fail. The offset then has no
+    stated sigma; the segment keeps its adjustment."""
+    from worker.pipeline.slam import world_bundle
+
+    reduced = world_bundle._reduced
+
+    def singular_when_undamped(H, hpp, hcp, lam):
+        if lam == 0.0:
+            hpp = hpp.copy()
+            hpp[0] = [[4e7, 0.0, 4e7], [0.0, 4e7, 0.0], [4e7, 0.0, 4e7]]
+        return reduced(H, hpp, hcp, lam)
+
+    regular, _, _, regular_result = _run(1, refine=True, hold_offset=False)
+    assert regular_result.segments[0]["refinement"]["offset_sigma_s"] > 0
+    monkeypatch.setattr(world_bundle, "_reduced", singular_when_undamped)
+    sparse, _, _, result = _run(1, refine=True, hold_offset=False)
+    refinement = result.segments[0]["refinement"]
+    assert refinement["kept"], refinement
+    assert refinement["offset_sigma_s"] is None
+    assert result.time_offset_s == regular_result.time_offset_s
+    np.testing.assert_allclose(sparse.kf_centres(), regular.kf_centres(), atol=1e-9)
+
+
 def _pushed_off(tilt_deg: float, push_m: float):
     """The line's map fitted to its log by the similarity alone, then turned by
     `tilt_deg` about a horizontal axis and pushed `push_m` east: what a map bent by its

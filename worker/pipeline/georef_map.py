@@ -202,9 +202,12 @@ def georeference_map(
                 if entry["refinement"].get("kept"):
                     adjusted.add(segment)
                     sigma_s = entry["refinement"].get("offset_sigma_s")
-                    if clock[1] is not None and sigma_s is not None:
+                    if clock[1] is not None:
+                        # Without a stated sigma (a singular system) the next segment
+                        # keeps the prior's.
                         floor = options.world.min_offset_sigma_s
-                        clock[:] = [segment_offset, max(float(sigma_s), floor)]
+                        sigma = clock[1] if sigma_s is None else max(float(sigma_s), floor)
+                        clock[:] = [segment_offset, sigma]
             elif options.refine and fit.straightness < options.refine_min_straightness:
                 entry["refinement"] = {
                     "skipped": f"a near-straight track (straightness {fit.straightness:.3f}): "

@@ -354,14 +354,16 @@ def _offset_sigma(pb: WorldBAProblem, t: _Terms, n_kf: int, n_pt: int) -> float 
     if pb.offset_sigma_s is None:
         return None
     H, _, hpp, _, hcp = _normal_equations(pb, t, n_kf, n_pt)
-    S, _, _ = _reduced(H, hpp, hcp, 0.0)
-    unit = np.zeros(S.shape[0])
+    unit = np.zeros(H.shape[0])
     unit[6 * n_kf] = 1.0
     with warnings.catch_warnings():
         warnings.simplefilter("error", spla.MatrixRankWarning)
         try:
+            # Undamped, a point seen along one ray only has a singular block (seed 101
+            # of the many-flight benchmark, RTK): no sigma then, not a failed flight.
+            S, _, _ = _reduced(H, hpp, hcp, 0.0)
             variance = float(spla.spsolve(S, unit)[6 * n_kf])
-        except spla.MatrixRankWarning:
+        except (spla.MatrixRankWarning, np.linalg.LinAlgError):
             return None
     return float(np.sqrt(variance)) if np.isfinite(variance) and variance > 0 else None
 
