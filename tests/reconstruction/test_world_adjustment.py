@@ -286,6 +286,27 @@ def test_a_point_seen_along_one_ray_leaves_the_offset_without_a_sigma_not_a_fail
     np.testing.assert_allclose(sparse.kf_centres(), regular.kf_centres(), atol=1e-9)
 
 
+def test_an_adjustment_that_breaks_down_leaves_the_segment_on_its_fit_and_says_so(
+    monkeypatch,
+):
+    """A numerical breakdown inside the adjustment (NumPy's LinAlgError) no longer fails
+    the whole flight: the segment keeps its similarity fit, and the report says why."""
+    from worker.pipeline import georef_world
+
+    def breaks_down(problem, max_iterations):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    fit_only, _, _, _ = _run(1, refine=False)
+    monkeypatch.setattr(georef_world, "world_bundle_adjust", breaks_down)
+    sparse, _, _, result = _run(1, refine=True)
+    entry = result.segments[0]
+    assert entry["refinement"]["kept"] is False
+    assert "broke down (Singular matrix)" in entry["refinement"]["reason"]
+    np.testing.assert_allclose(sparse.kf_centres(), fit_only.kf_centres(), atol=1e-9)
+    assert entry["within_stated_accuracy"] is False
+    assert any(w.startswith("segment 0:") for w in result.warnings), result.warnings
+
+
 def _pushed_off(tilt_deg: float, push_m: float):
     """The line's map fitted to its log by the similarity alone, then turned by
     `tilt_deg` about a horizontal axis and pushed `push_m` east: what a map bent by its

@@ -185,19 +185,29 @@ def georeference_map(
                 sigma = accuracy
                 if sigma is None:
                     sigma = _spread_sigma(sparse, segment, log, offset_s, epsg, fit, options)
-                entry["refinement"] = adjust_segment(
-                    sparse,
-                    segment,
-                    log,
-                    segment_offset,
-                    epsg,
-                    sigma,
-                    options.world,
-                    offset_sigma_s=clock[1],
-                    straight=fit.straightness < options.refine_min_straightness,
-                    drift=fit.gnss_drift,
-                    stated_accuracy=accuracy is not None,
-                )
+                try:
+                    entry["refinement"] = adjust_segment(
+                        sparse,
+                        segment,
+                        log,
+                        segment_offset,
+                        epsg,
+                        sigma,
+                        options.world,
+                        offset_sigma_s=clock[1],
+                        straight=fit.straightness < options.refine_min_straightness,
+                        drift=fit.gnss_drift,
+                        stated_accuracy=accuracy is not None,
+                    )
+                except np.linalg.LinAlgError as exc:
+                    # The adjustment changes the map only once it has succeeded: the
+                    # segment keeps its fit, and the reason goes into the report.
+                    entry["refinement"] = {
+                        "kept": False,
+                        "reason": f"the adjustment against the log broke down ({exc}): "
+                        "the segment keeps its fit",
+                        "offset_s": segment_offset,
+                    }
                 segment_offset = entry["refinement"]["offset_s"]
                 if entry["refinement"].get("kept"):
                     adjusted.add(segment)
