@@ -31,8 +31,7 @@ others, not the others towards them). Four rounds, the ground taken again from t
 corrected points each round and the entries reweighted (Huber) so that a patch of wrong
 matches does not tilt a pair. A plane is evaluated within two standard deviations of its
 pair's points about their centre, so a stray point of the pair takes the value at that
-edge. A pair that shares no cell with
-another is left as it is.
+edge. A pair that shares no cell with another is left as it is.
 """
 
 from __future__ import annotations
