@@ -12,6 +12,7 @@ from scipy import ndimage
 
 from tests.pipeline.change_rasters import uniform_change_rasters
 from worker.pipeline.change_regions import (
+    DISPLACED_EDGES,
     LANDSLIDE,
     SURFACE_CHANGE,
     BaselineTest,
@@ -270,3 +271,31 @@ def test_displaced_edges_explain_a_blurred_step_and_not_a_scar():
     dh = post - pre
     dh[0, 0] = np.nan
     assert not displaced_edges(pre, dh, lod)[0, 0]
+
+
+def test_a_walls_displaced_edge_beside_a_slide_does_not_join_it():
+    """The wall's strip of the test above, a slide 3 m off: the strip stays surface
+    change (a lost object there would join the slide as what it carried off)."""
+    pixel, shape = 0.3, (200, 200)
+    rng = np.random.default_rng(0)
+    ground = 0.02 * np.mgrid[0 : shape[0], 0 : shape[1]][1] * pixel
+    house = np.zeros(shape)
+    house[60:140, 70:110] = 12.0
+    post = ground + ndimage.shift(house, (0.1, 0.15), order=3, mode="nearest")
+    post += rng.normal(0.0, SIGMA, shape)
+    post[70:130, 120:160] -= 1.0  # 18 x 12 m, its edge 3 m east of the wall
+    rasters = uniform_change_rasters(
+        ground + house + rng.normal(0.0, SIGMA, shape), post, pixel, SIGMA
+    )
+    options = RegionOptions()
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    regions = [
+        describe_region(rasters, labels, label, window, options)
+        for label, window in zip(keep, windows, strict=True)
+    ]
+    assert sorted(r.kind for r in regions) == [LANDSLIDE, SURFACE_CHANGE]
+    (strip,) = [r for r in regions if r.kind == SURFACE_CHANGE]
+    assert strip.cause == DISPLACED_EDGES
+    landslides, surface = split_surface_changes(regions, options)
+    assert len(landslides) == 1 and surface == [strip]
+    assert landslides[0].properties["area_m2"] < 18 * 12 * 1.2

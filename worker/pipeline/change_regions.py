@@ -72,6 +72,9 @@ LANDSLIDE = "landslide"
 # Why a region is a surface change.
 OBJECTS = "objects"  # tall objects appeared or vanished (trees, buildings)
 VEGETATION_CUT = "vegetation-cut"  # low vegetation cut (vegetation_cut.py)
+# Objects' edges moved a fraction of a pixel (displaced_edges): nothing was lost there, so
+# such a region neither joins a landslide beside it nor skips the volume test.
+DISPLACED_EDGES = "displaced-edges"
 
 
 @dataclass
@@ -384,7 +387,7 @@ class Region:
     properties: dict[str, Any]
     traits: dict[str, float]
     kind: str  # LANDSLIDE or SURFACE_CHANGE
-    cause: str | None = None  # a surface change's: OBJECTS or VEGETATION_CUT
+    cause: str | None = None  # a surface change's: OBJECTS, DISPLACED_EDGES or VEGETATION_CUT
     # What the context rule measures distances from (split_surface_changes): the
     # region's own polygon (None) or one that takes in the baseline's region around it.
     reach: Any = None
@@ -432,8 +435,9 @@ def _joins(surface: Region, near: list[Region], options: RegionOptions) -> bool:
     """Whether a surface change lost beside these landslide regions is part of them:
     lost objects always (the trees a slide carried off); a vegetation cut only when
     their gain holds `cut_deposit_share` of its loss (a scar beside its deposit), since
-    mown grass lies beside whatever else changed."""
-    if not near:
+    mown grass lies beside whatever else changed; objects' displaced edges never
+    (nothing was lost there)."""
+    if not near or surface.cause == DISPLACED_EDGES:
         return False
     if surface.cause != VEGETATION_CUT:
         return True
@@ -553,9 +557,9 @@ def _baseline_kind(
     lod = np.full(dh.shape, np.float32(lod95))
     with np.errstate(invalid="ignore"):
         significant = inside & (np.abs(dh) > lod)
-    kind = _kind(rasters, win, inside, significant, dh, lod, options)[0]
+    kind, object_share, _ = _kind(rasters, win, inside, significant, dh, lod, options)
     if kind == SURFACE_CHANGE:
-        return kind, OBJECTS
+        return kind, _object_cause(object_share, options)
     if _vegetation_cut(rasters, win, inside, dh, lod, options):
         return SURFACE_CHANGE, VEGETATION_CUT
     return kind, None
@@ -606,7 +610,7 @@ def describe_region(
         else 0.0
     )
     kind, object_share, ground_share = _kind(rasters, win, inside, significant, dh, lod, options)
-    cause = OBJECTS if kind == SURFACE_CHANGE else None
+    cause = _object_cause(object_share, options) if kind == SURFACE_CHANGE else None
     if kind == LANDSLIDE and _vegetation_cut(rasters, win, inside, dh, lod, options):
         kind, cause = SURFACE_CHANGE, VEGETATION_CUT
     ring = near & ~inside
@@ -730,6 +734,12 @@ def _kind(
     if edge_share >= options.object_fraction and moved_share < options.ground_motion_fraction:
         return SURFACE_CHANGE, object_share, ground_share
     return LANDSLIDE, object_share, ground_share
+
+
+def _object_cause(object_share: float, options: RegionOptions) -> str:
+    """Why the object rule set a region aside: objects that appeared or vanished, or
+    (when those alone are too few) objects' edges moved a fraction of a pixel."""
+    return OBJECTS if object_share >= options.object_fraction else DISPLACED_EDGES
 
 
 def displaced_edges(pre: np.ndarray, dh: np.ndarray, lod: np.ndarray) -> np.ndarray:
