@@ -1,7 +1,6 @@
 """A video segment's georeference checked against the log's accuracy: within it, missed
 (reported), or broken beyond repair (left out with the reason when another segment holds;
-worker/pipeline/georef_map.py `_check_segments`); on a log stating none, against what the
-flight's other segments show (`_check_standalone_segments`)."""
+worker/pipeline/georef_map.py `_check_segments`)."""
 
 import numpy as np
 import pytest
@@ -103,26 +102,10 @@ def test_a_segment_within_the_accuracy_says_so_and_without_one_nothing_is_checke
     assert [s["within_stated_accuracy"] for s in result.segments] == [True, True]
     assert not result.warnings
     assert survey_quality({"georeference": result.to_dict()})["passed"]
-    # A log stating no accuracy, none declared: the flight's own segments are the measure,
-    # and where the broken one holds most of the frames nothing shows it is the broken one.
+    # A log stating no accuracy, none declared: nothing to check against, nothing left out.
     plain = georeference_map(_map([(GOOD, False), (LATER, True)]), _log(), 0.0, _options(None))
     assert len(plain.segments) == 2
     assert all("within_stated_accuracy" not in s for s in plain.segments)
-
-
-def test_on_a_log_stating_no_accuracy_a_segment_far_beyond_the_others_is_left_out():
-    first, second, third = np.arange(0.0, 35.0), np.arange(40.0, 75.0), np.arange(80.0, 115.0)
-    sparse = _map([(first, False), (second, True), (third, False)])
-    result = georeference_map(sparse, _log(), 0.0, _options(None))
-    assert [s["segment"] for s in result.segments] == [0, 2]
-    (reason,) = result.warnings
-    assert reason.startswith("segment 1 left out") and "the rest of the flight shows" in reason
-    assert set(sparse.kf_segment.tolist()) == {0, 2}
-    # Segments that all hold: none left out, nothing said.
-    whole = georeference_map(
-        _map([(first, False), (second, False), (third, False)]), _log(), 0.0, _options(None)
-    )
-    assert len(whole.segments) == 3 and not whole.warnings
 
 
 def test_a_segment_missing_the_accuracy_by_a_little_is_reported_not_dropped():

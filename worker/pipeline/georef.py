@@ -120,10 +120,6 @@ class GeorefOptions:
     # accuracy bound is broken (tracking lost and resumed wrongly): left out, with the
     # reason, when another segment is within its bound.
     broken_segment_factor: float = 10.0
-    # ... and on a log stating no accuracy, beyond this too: the segment's residuals are
-    # then weighed against the accuracy the flight's other segments show, and stand-alone
-    # drift within a long segment leaves up to about a metre.
-    min_broken_standalone_m: float = 1.0
 
 
 _DOWN = np.array([0.0, 0.0, -1.0])

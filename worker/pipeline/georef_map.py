@@ -281,11 +281,8 @@ def georeference_map(
         raise InputError(
             "no part of the reconstruction could be georeferenced: " + "; ".join(warnings)
         )
-    if photos is None:
-        if accuracy is not None:
-            results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
-        else:
-            results, dropped = _check_standalone_segments(sparse, results, options.georef, warnings)
+    if photos is None and accuracy is not None:
+        results, dropped = _check_segments(sparse, results, accuracy, options.georef, warnings)
         if dropped:
             sparse.update_frames_from_keyframes()
     settled = float(clock[0]) if adjusted and not hold_offset else None
@@ -342,48 +339,6 @@ def _check_segments(
             f"{rms_h:.2f} m RMS horizontally from the log's positions, more than "
             f"{options.broken_segment_factor:.0f} times the {bound:.2f} m the log's accuracy "
             "allows (the reconstruction broke there, e.g. after tracking was lost)"
-        )
-        _drop_segment(sparse, entry["segment"])
-    left_out = {id(entry) for entry, _ in broken}
-    return [e for e in results if id(e) not in left_out], len(broken)
-
-
-def _check_standalone_segments(
-    sparse: SparseMap,
-    results: list[dict[str, Any]],
-    options: GeorefOptions,
-    warnings: list[str],
-) -> tuple[list[dict[str, Any]], int]:
-    """Video segments on a log that states no accuracy (stand-alone GNSS), checked
-    against the accuracy the flight itself shows: the median over its frames of their
-    segment's horizontal RMS residual after the adjustment. A segment beyond
-    `broken_segment_factor` times that (and beyond `min_broken_standalone_m`) is broken
-    and left out with the reason: stand-alone drift within a segment is absorbed by its
-    fit, and a reconstruction that broke leaves metres where the others leave decimetres
-    (seed 106 of the many-flight benchmark: one segment of five at 2.6 m, the others
-    0.12-0.14 m, its points 5.9 m below the ground). Returns the entries kept and how many
-    were left out."""
-    placed = [
-        (entry, float(np.hypot(after["rms_east"], after["rms_north"])))
-        for entry in results
-        if "rms_east" in (after := entry.get("residuals_after_m") or {})
-    ]
-    if len(placed) < 2:
-        return results, 0
-    rms = np.array([r for _, r in placed])
-    frames = np.array([max(int(e.get("frames", 1)), 1) for e, _ in placed])
-    order = np.argsort(rms)
-    cumulative = np.cumsum(frames[order])
-    shown = float(rms[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
-    bound = max(options.broken_segment_factor * shown, options.min_broken_standalone_m)
-    broken = [(e, r) for e, r in placed if r > bound]
-    for entry, rms_h in broken:
-        warnings.append(
-            f"segment {entry['segment']} left out: after the georeference its cameras are "
-            f"{rms_h:.2f} m RMS horizontally from the log's positions, more than "
-            f"{options.broken_segment_factor:.0f} times the {shown:.2f} m the rest of the "
-            "flight shows (the log states no accuracy; the reconstruction broke there, e.g. "
-            "after tracking was lost)"
         )
         _drop_segment(sparse, entry["segment"])
     left_out = {id(entry) for entry, _ in broken}
