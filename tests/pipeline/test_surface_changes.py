@@ -219,35 +219,42 @@ def test_crowns_a_slide_took_join_it_as_far_as_the_baseline_joins_them():
     assert len(split_surface_changes(own, options)[0]) == 1
 
 
-def test_a_walls_edge_resampled_a_fraction_of_a_pixel_off_is_surface_change():
-    """A house's walls in a post survey resampled 0.1-0.15 pixel off (a registration's
-    residual, a rotation's correction): a thin strip of metres of change along them,
-    half of it beside the house rather than on it (the blur is under the object height),
-    so the object rule alone would take it for ground that moved. Each survey's height
-    there lies within the other's over a pixel's neighbourhood: surface change. Ground
-    lowered a metre along the same wall lies below its neighbours before: a landslide."""
+def _house_pair(seed: int, slid: tuple[slice, slice] | None) -> ChangeRasters:
+    """A 24 x 12 m house 12 m tall on 0.3 m pixels, its walls in the post survey
+    resampled 0.1-0.15 pixel off (a registration's residual, a rotation's correction);
+    the ground in `slid` lowered 1 m in the post survey."""
     pixel, shape = 0.3, (200, 200)
+    rng = np.random.default_rng(seed)
+    ground = 0.02 * np.mgrid[0 : shape[0], 0 : shape[1]][1] * pixel
+    house = np.zeros(shape)
+    house[60:140, 70:110] = 12.0
+    post = ground + ndimage.shift(house, (0.1, 0.15), order=3, mode="nearest")
+    post += rng.normal(0.0, SIGMA, shape)
+    if slid is not None:
+        post[slid] -= 1.0
+    pre = ground + house + rng.normal(0.0, SIGMA, shape)
+    return uniform_change_rasters(pre, post, pixel, SIGMA)
+
+
+def _described(rasters: ChangeRasters, options: RegionOptions) -> list[Region]:
+    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
+    return [
+        describe_region(rasters, labels, label, window, options)
+        for label, window in zip(keep, windows, strict=True)
+    ]
+
+
+def test_a_walls_edge_resampled_a_fraction_of_a_pixel_off_is_surface_change():
+    """The house's walls resampled a fraction of a pixel off: a thin strip of metres of
+    change along them, half of it beside the house rather than on it (the blur is under
+    the object height), so the object rule alone would take it for ground that moved.
+    Each survey's height there lies within the other's over a pixel's neighbourhood:
+    surface change. Ground lowered a metre along the same wall lies below its neighbours
+    before: a landslide."""
     options = RegionOptions()
     for seed in range(3):
-        for slid in (False, True):
-            rng = np.random.default_rng(seed)
-            ground = 0.02 * np.mgrid[0 : shape[0], 0 : shape[1]][1] * pixel
-            house = np.zeros(shape)
-            house[60:140, 70:110] = 12.0  # 24 x 12 m, 12 m tall
-            resampled = ndimage.shift(house, (0.1, 0.15), order=3, mode="nearest")
-            post = ground + resampled + rng.normal(0.0, SIGMA, shape)
-            if slid:
-                post[70:130, 110:150] -= 1.0  # 18 x 12 m along the east wall
-            rasters = uniform_change_rasters(
-                ground + house + rng.normal(0.0, SIGMA, shape), post, pixel, SIGMA
-            )
-            labels, keep, windows = label_regions(
-                significant_regions(rasters, options), rasters, options
-            )
-            regions = [
-                describe_region(rasters, labels, label, window, options)
-                for label, window in zip(keep, windows, strict=True)
-            ]
+        for slid in (None, (slice(70, 130), slice(110, 150))):  # 18 x 12 m along the wall
+            regions = _described(_house_pair(seed, slid), options)
             assert len(regions) == 1, f"seed {seed}: the walls' strip is one region"
             (region,) = regions
             if slid:
@@ -276,23 +283,9 @@ def test_displaced_edges_explain_a_blurred_step_and_not_a_scar():
 def test_a_walls_displaced_edge_beside_a_slide_does_not_join_it():
     """The wall's strip of the test above, a slide 3 m off: the strip stays surface
     change (a lost object there would join the slide as what it carried off)."""
-    pixel, shape = 0.3, (200, 200)
-    rng = np.random.default_rng(0)
-    ground = 0.02 * np.mgrid[0 : shape[0], 0 : shape[1]][1] * pixel
-    house = np.zeros(shape)
-    house[60:140, 70:110] = 12.0
-    post = ground + ndimage.shift(house, (0.1, 0.15), order=3, mode="nearest")
-    post += rng.normal(0.0, SIGMA, shape)
-    post[70:130, 120:160] -= 1.0  # 18 x 12 m, its edge 3 m east of the wall
-    rasters = uniform_change_rasters(
-        ground + house + rng.normal(0.0, SIGMA, shape), post, pixel, SIGMA
-    )
     options = RegionOptions()
-    labels, keep, windows = label_regions(significant_regions(rasters, options), rasters, options)
-    regions = [
-        describe_region(rasters, labels, label, window, options)
-        for label, window in zip(keep, windows, strict=True)
-    ]
+    # 18 x 12 m, its edge 3 m east of the wall.
+    regions = _described(_house_pair(0, (slice(70, 130), slice(120, 160))), options)
     assert sorted(r.kind for r in regions) == [LANDSLIDE, SURFACE_CHANGE]
     (strip,) = [r for r in regions if r.kind == SURFACE_CHANGE]
     assert strip.cause == DISPLACED_EDGES
